@@ -1,0 +1,46 @@
+"""On-disk feature cache, keyed by sequence, frame and detector settings (training, evaluation)."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .datasets import Sequence
+from .features import Features
+
+
+def default_cache_dir() -> Path:
+    """$NMNET_CACHE, else ~/.cache/nmnet_ros."""
+    return Path(os.environ.get("NMNET_CACHE", Path.home() / ".cache" / "nmnet_ros"))
+
+
+class FeatureCache:
+    """Computes features of a sequence frame once and reuses them from ``root``."""
+
+    def __init__(self, detector, root: Path | None = None) -> None:
+        self.detector = detector
+        self.root = Path(root) if root is not None else default_cache_dir()
+
+    def path(self, seq: Sequence, i: int) -> Path:
+        """Cache file of frame i; the folder's absolute path is hashed so equal names do not collide."""
+        tag = hashlib.sha1(str(seq.root.resolve()).encode()).hexdigest()[:8]
+        return self.root / self.detector.cache_key / f"{seq.name}-{tag}" / f"{seq.paths[i].stem}.npz"
+
+    def __call__(self, seq: Sequence, i: int) -> Features:
+        """Features of frame i of ``seq``, from the cache when present."""
+        p = self.path(seq, i)
+        if p.is_file():
+            try:
+                with np.load(p) as d:
+                    return Features.from_npz(d)
+            except (OSError, ValueError, KeyError):
+                p.unlink(missing_ok=True)  # a torn write from an interrupted run: recompute
+        f = self.detector(seq.image(i))
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp = p.with_name(p.stem + f".{os.getpid()}.tmp.npz")
+        np.savez(tmp, **f.to_npz())
+        tmp.replace(p)
+        return f

@@ -1,0 +1,51 @@
+"""The ``nmnet`` command: one entry point, one subcommand per tool."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# subcommand -> (module, help); each module has add_arguments(parser) and main(args) -> int
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("nmnet_ros.demo", "run the front end on the bundled sample and print matches and pose"),
+    "train": ("nmnet_ros.train", "train NM-Net on sequence folders"),
+    "eval": ("nmnet_ros.evaluate", "compare correspondence selectors on sequence folders"),
+    "neighbors": ("nmnet_ros.neighbor_study", "inlier ratio of compatibility vs spatial neighbours (paper Fig. 3)"),
+    "bench": ("nmnet_ros.bench", "time the pipeline stages on this machine"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Parser with every subcommand's options (modules imported lazily per subcommand)."""
+    parser = argparse.ArgumentParser(prog="nmnet", description="NM-Net visual-odometry front end: tools.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        if name in sys.argv[1:2]:  # only import the chosen tool's module
+            importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``nmnet`` console script."""
+    argv = sys.argv[1:] if argv is None else argv
+    sys.argv[1:] = argv
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_module", None):
+        parser.print_help()
+        return 0
+    try:
+        return importlib.import_module(args._module).main(args)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, OSError) as e:
+        print(f"nmnet {args.command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,153 @@
+"""Sequence folders (../shared/data format): camera.yaml, images.txt, groundtruth.txt, pairs.txt.
+
+Also pair sampling by frame gap and ground-truth labels of correspondences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from .geometry import Camera, CameraError, essential_from_pose, sym_epipolar_sq
+
+LABEL_THRESHOLD = 1e-4  # squared symmetric epipolar distance, normalised coordinates (paper)
+
+
+class DatasetError(ValueError):
+    """A sequence folder is missing a file or has a malformed one."""
+
+
+def read_camera_yaml(path: Path) -> Camera:
+    """ROS camera_info YAML (camera_calibration_parsers layout) -> Camera."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing; a sequence folder needs camera.yaml (ROS camera_info YAML)")
+    try:
+        d = yaml.safe_load(path.read_text())
+        K = np.array(d["camera_matrix"]["data"], np.float64).reshape(3, 3)
+        dist = np.array(d.get("distortion_coefficients", {}).get("data", []) or [], np.float64)
+        model = d.get("distortion_model", "plumb_bob")
+        if model not in ("plumb_bob", "rational_polynomial", "", None):
+            raise DatasetError(f"{path}: distortion_model {model!r} not supported (use plumb_bob)")
+        return Camera(K, dist, int(d.get("image_width", 0)), int(d.get("image_height", 0)))
+    except (KeyError, TypeError, yaml.YAMLError) as e:
+        raise DatasetError(f"{path}: malformed camera YAML ({e})") from e
+    except CameraError as e:
+        raise DatasetError(f"{path}: {e}") from e
+
+
+def _read_table(path: Path) -> list[list[str]]:
+    return [ln.split() for ln in Path(path).read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+
+
+def quat_to_rot(q: np.ndarray) -> np.ndarray:
+    """(qx, qy, qz, qw) -> 3x3 rotation matrix."""
+    x, y, z, w = np.asarray(q, np.float64) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """TUM trajectory file -> (timestamps (N,), T_WC (N,4,4))."""
+    rows = _read_table(path)
+    if not rows or any(len(r) != 8 for r in rows):
+        raise DatasetError(f"{path}: expected lines 'timestamp tx ty tz qx qy qz qw'")
+    a = np.array(rows, np.float64)
+    T = np.tile(np.eye(4), (len(a), 1, 1))
+    for n, r in enumerate(a):
+        T[n, :3, :3] = quat_to_rot(r[4:8])
+        T[n, :3, 3] = r[1:4]
+    return a[:, 0], T
+
+
+@dataclass
+class Sequence:
+    """One sequence folder with camera, frames, optional ground-truth poses and pairs."""
+
+    root: Path
+    camera: Camera
+    stamps: np.ndarray  # (N,)
+    paths: list[Path]
+    poses: np.ndarray | None  # (N,4,4) T_WC
+    pairs_file: list[tuple[int, int]] | None
+
+    @classmethod
+    def load(cls, root: str | Path) -> Sequence:
+        """Read a folder; raises DatasetError naming the missing or malformed file."""
+        root = Path(root)
+        if not root.is_dir():
+            raise DatasetError(f"{root}: not a directory")
+        camera = read_camera_yaml(root / "camera.yaml")
+        if not (root / "images.txt").is_file():
+            raise DatasetError(f"{root / 'images.txt'}: missing; list frames as 'timestamp path' lines")
+        rows = _read_table(root / "images.txt")
+        if not rows:
+            raise DatasetError(f"{root / 'images.txt'}: no frames listed")
+        stamps = np.array([float(r[0]) for r in rows])
+        paths = [root / r[1] for r in rows]
+        poses = None
+        if (root / "groundtruth.txt").is_file():
+            gt_stamps, poses = read_tum(root / "groundtruth.txt")
+            if len(gt_stamps) != len(stamps):
+                idx = [int(np.argmin(np.abs(gt_stamps - s))) for s in stamps]
+                poses = poses[idx]
+        pairs = None
+        if (root / "pairs.txt").is_file():
+            pairs = [(int(a), int(b)) for a, b, *_ in _read_table(root / "pairs.txt")]
+            bad = [p for p in pairs if not (0 <= p[0] < len(paths) and 0 <= p[1] < len(paths))]
+            if bad:
+                raise DatasetError(f"{root / 'pairs.txt'}: pair indices out of range: {bad[:3]}")
+        return cls(root, camera, stamps, paths, poses, pairs)
+
+    @property
+    def name(self) -> str:
+        return self.root.name
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def image(self, i: int) -> np.ndarray:
+        """Frame i as stored (uint8 gray or BGR)."""
+        img = cv2.imread(str(self.paths[i]), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise DatasetError(f"{self.paths[i]}: cannot read image")
+        return img
+
+    def relative_pose(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """(R, t) of frame i in frame j: x_j = R x_i + t."""
+        if self.poses is None:
+            raise DatasetError(f"{self.root}: no groundtruth.txt, so no ground-truth pose")
+        T = np.linalg.inv(self.poses[j]) @ self.poses[i]
+        return T[:3, :3], T[:3, 3]
+
+    def pairs(self, gaps: tuple[int, ...] = (1,), frames: range | None = None) -> list[tuple[int, int]]:
+        """pairs.txt when present, else (i, i+g) for every gap g with both frames in ``frames``."""
+        if self.pairs_file is not None:
+            return list(self.pairs_file)
+        frames = frames if frames is not None else range(len(self))
+        fs = set(frames)
+        return [(i, i + g) for g in gaps for i in frames if i + g in fs]
+
+
+def epipolar_labels(seq: Sequence, i: int, j: int, k0: np.ndarray, k1: np.ndarray,
+                    threshold: float = LABEL_THRESHOLD) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth inlier labels and squared symmetric epipolar distances for pixel matches k0 (frame i) <-> k1 (frame j)."""
+    R, t = seq.relative_pose(i, j)
+    E = essential_from_pose(R, t)
+    d = sym_epipolar_sq(E, seq.camera.normalize(k0), seq.camera.normalize(k1))
+    return d < threshold, d
+
+
+def has_baseline(seq: Sequence, i: int, j: int, min_translation: float = 1e-2) -> bool:
+    """Whether the pair moved enough for epipolar labels (translation norm in GT units).
+
+    A static camera (e.g. the EuRoC excerpt, MAV on the ground) has an undefined epipolar
+    geometry: every match would be labelled by noise, so such pairs are excluded.
+    """
+    _, t = seq.relative_pose(i, j)
+    return bool(np.linalg.norm(t) > min_translation)

@@ -1,0 +1,192 @@
+"""Two-view geometry: camera model, normalisation, essential matrix, pose, error metrics.
+
+Conventions: for a pair (image 0, image 1), R, t map camera-0 coordinates to camera 1
+(x1 = R x0 + t) and E = [t]x R, so x1n^T E x0n = 0 for normalised coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+
+class CameraError(ValueError):
+    """Invalid intrinsics (zeros, NaN, wrong shape)."""
+
+
+@dataclass
+class Camera:
+    """Pinhole camera with optional plumb_bob (k1 k2 p1 p2 k3) distortion."""
+
+    K: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    width: int = 0
+    height: int = 0
+
+    def __post_init__(self) -> None:
+        self.K = np.asarray(self.K, np.float64)
+        self.dist = np.asarray(self.dist, np.float64).ravel()
+        if self.K.shape != (3, 3):
+            raise CameraError(f"K must be 3x3, got shape {self.K.shape}")
+        if not np.all(np.isfinite(self.K)) or not np.all(np.isfinite(self.dist)):
+            raise CameraError("camera intrinsics contain NaN or inf; check the calibration (camera_info K/D)")
+        if self.K[0, 0] <= 0 or self.K[1, 1] <= 0 or self.K[2, 2] == 0:
+            raise CameraError(f"camera focal lengths must be positive, got fx={self.K[0, 0]}, fy={self.K[1, 1]}: "
+                              "is the camera calibrated (camera_info K all zero)?")
+        if self.dist.size not in (0, 4, 5, 8, 12, 14):
+            raise CameraError(f"distortion must have 0/4/5/8/12/14 coefficients, got {self.dist.size}")
+
+    @property
+    def focal(self) -> float:
+        """Mean focal length in pixels (for pixel <-> normalised thresholds)."""
+        return float(0.5 * (self.K[0, 0] + self.K[1, 1]))
+
+    def normalize(self, pts: np.ndarray) -> np.ndarray:
+        """Pixel (N,2) -> undistorted normalised image coordinates (N,2)."""
+        pts = np.asarray(pts, np.float64).reshape(-1, 2)
+        if len(pts) == 0:
+            return np.zeros((0, 2))
+        if not np.any(self.dist):
+            return (pts - self.K[:2, 2]) / np.diag(self.K)[:2]
+        return cv2.undistortPoints(pts[:, None], self.K, self.dist).reshape(-1, 2)
+
+
+def _checked_pair(x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    x0 = np.asarray(x0, np.float64).reshape(-1, 2) if np.size(x0) else np.zeros((0, 2))
+    x1 = np.asarray(x1, np.float64).reshape(-1, 2) if np.size(x1) else np.zeros((0, 2))
+    if len(x0) != len(x1):
+        raise ValueError(f"point arrays differ in length: {len(x0)} vs {len(x1)}")
+    return x0, x1
+
+
+def skew(t: np.ndarray) -> np.ndarray:
+    """Cross-product matrix [t]x."""
+    return np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]], np.float64)
+
+
+def essential_from_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """E = [t]x R (t normalised)."""
+    t = np.asarray(t, np.float64).ravel()
+    return skew(t / max(np.linalg.norm(t), 1e-12)) @ R
+
+
+def sym_epipolar_sq(E: np.ndarray, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+    """Squared symmetric epipolar distance of normalised correspondences (the paper's label rule)."""
+    x0, x1 = _checked_pair(x0, x1)
+    h0 = np.c_[x0, np.ones(len(x0))]
+    h1 = np.c_[x1, np.ones(len(x1))]
+    l1 = h0 @ E.T  # epipolar lines in image 1
+    l0 = h1 @ E  # epipolar lines in image 0
+    num = np.sum(h1 * l1, axis=1) ** 2
+    return num * (1.0 / (l1[:, 0] ** 2 + l1[:, 1] ** 2 + 1e-15) + 1.0 / (l0[:, 0] ** 2 + l0[:, 1] ** 2 + 1e-15))
+
+
+@dataclass
+class PoseEstimate:
+    """Relative pose from two views: x1 = R x0 + t, |t| = 1 (scale unknown)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    E: np.ndarray
+    inliers: np.ndarray  # (N,) bool: correspondences consistent with the pose
+
+
+MIN_MATCHES = 8
+
+
+def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac", threshold: float = 1e-3,
+                       confidence: float = 0.999, max_iters: int = 10000, seed: int = 0) -> tuple[np.ndarray, np.ndarray] | None:
+    """Robust E from normalised points: ``magsac`` (OpenCV USAC MAGSAC++) or ``ransac``.
+
+    ``threshold`` is in normalised units (pixels / focal length). Returns (E, inlier mask) or
+    None when there are fewer than 8 correspondences or no model was found.
+    """
+    x0n, x1n = _checked_pair(x0n, x1n)
+    if len(x0n) < MIN_MATCHES:
+        return None
+    flags = {"magsac": cv2.USAC_MAGSAC, "ransac": cv2.RANSAC}
+    if method not in flags:
+        raise ValueError(f"unknown robust estimator {method!r}; use one of {sorted(flags)}")
+    cv2.setRNGSeed(seed)
+    E, mask = cv2.findEssentialMat(x0n, x1n, np.eye(3), method=flags[method], prob=confidence,
+                                   threshold=threshold, maxIters=max_iters)
+    if E is None or E.shape[0] < 3 or mask is None:
+        return None
+    return E[:3], mask.ravel().astype(bool)  # several stacked solutions: the first is the best
+
+
+def weighted_eight_point(x0n: np.ndarray, x1n: np.ndarray, weights: np.ndarray) -> np.ndarray | None:
+    """Essential matrix minimising the weighted algebraic epipolar error (as in Yi et al. 2018).
+
+    Used with network scores as weights; returns None when fewer than 8 weights are positive.
+    """
+    x0n, x1n = _checked_pair(x0n, x1n)
+    w = np.clip(np.asarray(weights, np.float64).ravel(), 0, None)
+    if len(w) != len(x0n):
+        raise ValueError(f"weights length {len(w)} does not match {len(x0n)} correspondences")
+    if np.count_nonzero(w > 1e-6) < MIN_MATCHES:
+        return None
+    x, y = x0n[:, 0], x0n[:, 1]
+    u, v = x1n[:, 0], x1n[:, 1]
+    X = np.stack([u * x, u * y, u, v * x, v * y, v, x, y, np.ones_like(x)], 1)
+    XwX = X.T @ (X * w[:, None])
+    _, vecs = np.linalg.eigh(XwX)
+    E = vecs[:, 0].reshape(3, 3)
+    U, _, Vt = np.linalg.svd(E)
+    return U @ np.diag([1.0, 1.0, 0.0]) @ Vt
+
+
+def recover_pose(E: np.ndarray, x0n: np.ndarray, x1n: np.ndarray, mask: np.ndarray | None = None) -> PoseEstimate | None:
+    """R, t from E by the cheirality check (OpenCV recoverPose) over the masked points."""
+    x0n, x1n = _checked_pair(x0n, x1n)
+    if E is None or len(x0n) < 5:
+        return None
+    m = np.ones(len(x0n), bool) if mask is None else np.asarray(mask, bool).copy()
+    if m.sum() < 5:
+        return None
+    n, R, t, m_out = cv2.recoverPose(E, x0n, x1n, np.eye(3), mask=m.astype(np.uint8)[:, None].copy())
+    if n == 0:
+        return None
+    return PoseEstimate(R=R, t=t.ravel() / max(np.linalg.norm(t), 1e-12), E=E, inliers=m_out.ravel() > 0)
+
+
+def rotation_error_deg(R: np.ndarray, R_gt: np.ndarray) -> float:
+    """Angle of R R_gt^T in degrees."""
+    c = (np.trace(R @ R_gt.T) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def translation_error_deg(t: np.ndarray, t_gt: np.ndarray) -> float:
+    """Angle between translation directions, sign-agnostic: min(e, 180 - e)."""
+    t, t_gt = np.ravel(t), np.ravel(t_gt)
+    n = np.linalg.norm(t) * np.linalg.norm(t_gt)
+    if n < 1e-12:
+        return 180.0 if np.linalg.norm(t_gt) > 1e-12 else 0.0
+    e = float(np.degrees(np.arccos(np.clip(np.dot(t, t_gt) / n, -1.0, 1.0))))
+    return min(e, 180.0 - e)
+
+
+def pose_error_deg(pose: PoseEstimate | None, R_gt: np.ndarray, t_gt: np.ndarray) -> tuple[float, float]:
+    """(rotation, translation) errors in degrees; a failed estimate counts as 180 each."""
+    if pose is None:
+        return 180.0, 180.0
+    return rotation_error_deg(pose.R, R_gt), translation_error_deg(pose.t, t_gt)
+
+
+def pose_auc(errors: np.ndarray, thresholds: tuple[float, ...] = (5.0, 10.0, 20.0)) -> list[float]:
+    """Area under the recall-vs-error curve up to each threshold, in [0, 1] (SuperGlue's trapezoid)."""
+    errors = np.sort(np.asarray(errors, np.float64).ravel())
+    if errors.size == 0:
+        return [0.0 for _ in thresholds]
+    recall = (np.arange(len(errors)) + 1) / len(errors)
+    errors = np.r_[0.0, errors]
+    recall = np.r_[0.0, recall]
+    aucs = []
+    for th in thresholds:
+        last = np.searchsorted(errors, th)
+        r = np.r_[recall[:last], recall[last - 1]]
+        e = np.r_[errors[:last], th]
+        aucs.append(float(np.trapezoid(r, x=e) / th))
+    return aucs

@@ -1,0 +1,137 @@
+"""Neighbour mining for NM-Net: compatibility-specific (paper Eq. 2-5) and spatial kNN.
+
+With T = [[A, k], [0, 0, 1]], a correspondence's local transformation H_i = T'_i T_i^-1 is
+affine: H_i x = M_i x + b_i with M_i = A'_i A_i^-1 and b_i = k'_i - M_i k_i, so H_i(k_i) = k'_i
+and the error e_j(c_i) = |H_j(k_i) - k'_i|_1 (L1, pixels, as the authors' code) is one small
+matrix product for all pairs. Ranking by e_j(c_i) + e_i(c_j) equals ranking by the score
+s = exp(-lambda (e_j + e_i)); each correspondence is its own first neighbour.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+CHUNK = 2048  # rows per block: bounds memory to ~CHUNK * N * 8 bytes
+
+
+def local_transforms(k0: np.ndarray, a0: np.ndarray, k1: np.ndarray, a1: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """M (N,2,2) and b (N,2) of H_i = T'_i T_i^-1 for each correspondence."""
+    a0t = torch.as_tensor(np.asarray(a0, np.float32))
+    a1t = torch.as_tensor(np.asarray(a1, np.float32))
+    k0t = torch.as_tensor(np.asarray(k0, np.float32))
+    k1t = torch.as_tensor(np.asarray(k1, np.float32))
+    m = a1t @ torch.linalg.inv(a0t)
+    b = k1t - (m @ k0t[..., None])[..., 0]
+    return m, b
+
+
+_WORKSPACE: list[torch.Tensor] = []
+
+
+def _workspace(size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Two reusable float buffers of at least ``size`` elements.
+
+    Freshly allocated multi-MB buffers are page-faulted on first touch, which costs more than
+    the arithmetic here; keeping them alive between frames removes that.
+    """
+    if not _WORKSPACE or _WORKSPACE[0].numel() < size:
+        _WORKSPACE[:] = [torch.empty(size), torch.empty(size)]
+    return _WORKSPACE[0], _WORKSPACE[1]
+
+
+def _check(n: int, k: int, *arrays: np.ndarray) -> int:
+    for a in arrays:
+        if len(a) != n:
+            raise ValueError(f"correspondence arrays disagree in length: {[len(x) for x in arrays]}")
+    if k < 1:
+        raise ValueError(f"k must be >= 1, got {k}")
+    return min(k, n)
+
+
+@torch.inference_mode()
+def compatibility_neighbors(k0: np.ndarray, a0: np.ndarray, k1: np.ndarray, a1: np.ndarray, k: int = 8) -> np.ndarray:
+    """Indices (N, k) of each correspondence's k most compatible ones, itself first.
+
+    k0, k1: (N,2) matched keypoints; a0, a1: (N,2,2) their affine frames. When N < k, the
+    missing slots repeat the correspondence itself.
+    """
+    n = len(k0)
+    kk = _check(n, k, a0, k1, a1)
+    if n == 0:
+        return np.zeros((0, k), np.int64)
+    m, b = local_transforms(k0, a0, k1, a1)
+    p0 = torch.as_tensor(np.asarray(k0, np.float32))
+    p1 = torch.as_tensor(np.asarray(k1, np.float32))
+    ones = torch.ones(n, 1)
+    # (H_j k_i - k'_i)_r = [k_i, 1, -k'_ir] . [M_j[r], b_jr, 1]: a rank-4 product per coordinate r
+    lhs = [torch.cat([p0, ones, -p1[:, r : r + 1]], 1) for r in range(2)]  # (N,4), indexed by i
+    rhs = [torch.cat([m[:, r, :], b[:, r : r + 1], ones], 1) for r in range(2)]  # (N,4), indexed by j
+    lhs_t = [x.T.contiguous() for x in lhs]  # contiguous (4,N) operands keep the GEMM on its fast path
+    rhs_t = [x.T.contiguous() for x in rhs]
+    out = torch.empty((n, kk), dtype=torch.int64)
+    err, term = _workspace(min(CHUNK, n) * n)
+    for s in range(0, n, CHUNK):
+        e = slice(s, min(s + CHUNK, n))
+        er, tr = err[: (e.stop - e.start) * n].view(-1, n), term[: (e.stop - e.start) * n].view(-1, n)
+        # er[i, j] = e_j(c_i) + e_i(c_j) for i in the chunk, all j
+        torch.mm(lhs[0][e], rhs_t[0], out=er).abs_()
+        for a, bt in ((lhs[1], rhs_t[1]), (rhs[0], lhs_t[0]), (rhs[1], lhs_t[1])):
+            er += torch.mm(a[e], bt, out=tr).abs_()
+        er[torch.arange(e.stop - e.start), torch.arange(e.start, e.stop)] = -1.0  # self first
+        out[e] = er.topk(kk, dim=1, largest=False, sorted=True).indices
+    return _pad(out.numpy(), k)
+
+
+@torch.inference_mode()
+def spatial_neighbors(k0: np.ndarray, k1: np.ndarray, k: int = 8) -> np.ndarray:
+    """Indices (N, k) of the k nearest correspondences in 4-D (x, y, x', y') pixel space, itself first."""
+    n = len(k0)
+    kk = _check(n, k, k1)
+    if n == 0:
+        return np.zeros((0, k), np.int64)
+    x = torch.as_tensor(np.concatenate([k0, k1], 1).astype(np.float32))
+    out = torch.empty((n, kk), dtype=torch.int64)
+    for s in range(0, n, CHUNK):
+        e = slice(s, min(s + CHUNK, n))
+        d = torch.cdist(x[e], x)
+        d[torch.arange(e.stop - e.start), torch.arange(e.start, e.stop)] = -1.0
+        out[e] = d.topk(kk, dim=1, largest=False, sorted=True).indices
+    return _pad(out.numpy(), k)
+
+
+def _pad(idx: np.ndarray, k: int) -> np.ndarray:
+    if idx.shape[1] == k:
+        return idx
+    fill = np.repeat(idx[:, :1], k - idx.shape[1], axis=1)
+    return np.concatenate([idx, fill], 1)
+
+
+def compatibility_neighbors_loop(k0: np.ndarray, a0: np.ndarray, k1: np.ndarray, a1: np.ndarray, k: int = 8) -> np.ndarray:
+    """Straightforward per-correspondence version of :func:`compatibility_neighbors` (benchmark baseline, tests)."""
+    n = len(k0)
+    t0 = [np.block([[np.asarray(a0[i], np.float64), np.asarray(k0[i], np.float64)[:, None]], [np.zeros((1, 2)), np.ones((1, 1))]]) for i in range(n)]
+    t1 = [np.block([[np.asarray(a1[i], np.float64), np.asarray(k1[i], np.float64)[:, None]], [np.zeros((1, 2)), np.ones((1, 1))]]) for i in range(n)]
+    hs = [t1[i] @ np.linalg.inv(t0[i]) for i in range(n)]
+    out = np.zeros((n, min(k, n)), np.int64)
+    for i in range(n):
+        ki = np.array([k0[i][0], k0[i][1], 1.0])
+        errs = np.empty(n)
+        for j in range(n):
+            kj = np.array([k0[j][0], k0[j][1], 1.0])
+            pi, pj = hs[j] @ ki, hs[i] @ kj
+            e_ji = np.abs(pi[:2] / pi[2] - np.asarray(k1[i], np.float64)).sum()
+            e_ij = np.abs(pj[:2] / pj[2] - np.asarray(k1[j], np.float64)).sum()
+            errs[j] = e_ji + e_ij
+        errs[i] = -1.0
+        out[i] = np.argsort(errs, kind="stable")[: min(k, n)]
+    return _pad(out, k)
+
+
+def mine_neighbors(kind: str, k0: np.ndarray, a0: np.ndarray, k1: np.ndarray, a1: np.ndarray, k: int = 8) -> np.ndarray:
+    """Neighbour indices for NM-Net (``compatibility``) or NM-Net-sp (``spatial``)."""
+    if kind == "compatibility":
+        return compatibility_neighbors(k0, a0, k1, a1, k)
+    if kind == "spatial":
+        return spatial_neighbors(k0, k1, k)
+    raise ValueError(f"unknown neighbour kind {kind!r}; use 'compatibility' or 'spatial'")

@@ -1,0 +1,86 @@
+"""Labelled correspondence sets of image pairs: the unit NM-Net trains and is evaluated on."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .cache import FeatureCache
+from .datasets import Sequence, epipolar_labels, has_baseline
+from .features import Features
+from .matching import Matches, match_descriptors
+
+
+@dataclass
+class PairData:
+    """Putative matches of one pair with everything the selectors and metrics need."""
+
+    seq: Sequence
+    i: int
+    j: int
+    feats0: Features
+    feats1: Features
+    matches: Matches
+    labels: np.ndarray  # (M,) bool ground-truth inliers
+    R: np.ndarray
+    t: np.ndarray
+
+    @property
+    def k0(self) -> np.ndarray:
+        return self.feats0.keypoints[self.matches.idx[:, 0]]
+
+    @property
+    def k1(self) -> np.ndarray:
+        return self.feats1.keypoints[self.matches.idx[:, 1]]
+
+    @property
+    def a0(self) -> np.ndarray:
+        return self.feats0.frames[self.matches.idx[:, 0]]
+
+    @property
+    def a1(self) -> np.ndarray:
+        return self.feats1.frames[self.matches.idx[:, 1]]
+
+    def normalized(self) -> tuple[np.ndarray, np.ndarray]:
+        """Undistorted normalised coordinates of both sides."""
+        return self.seq.camera.normalize(self.k0), self.seq.camera.normalize(self.k1)
+
+
+def view_angle_deg(seq: Sequence, i: int, j: int) -> float:
+    """Angle between the two cameras' optical axes (co-visibility proxy for unordered sets)."""
+    R, _ = seq.relative_pose(i, j)
+    return float(np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0))))
+
+
+def select_pairs(seq: Sequence, gaps: tuple[int, ...], frames: range | None = None,
+                 max_view_angle: float = 40.0) -> list[tuple[int, int]]:
+    """Pairs by frame gap (or pairs.txt) that have a baseline and are co-visible.
+
+    Pairs without translation (a static camera) have no epipolar geometry to label against
+    and are excluded, not labelled by noise.
+    """
+    out = []
+    for i, j in seq.pairs(gaps, frames):
+        if seq.poses is None or (has_baseline(seq, i, j) and view_angle_deg(seq, i, j) <= max_view_angle):
+            out.append((i, j))
+    return out
+
+
+def make_pair(seq: Sequence, i: int, j: int, cache: FeatureCache, match_config: dict | None = None) -> PairData:
+    """Features (cached), nearest-neighbour matches and ground-truth labels of pair (i, j)."""
+    f0, f1 = cache(seq, i), cache(seq, j)
+    m = match_descriptors(f0.descriptors, f1.descriptors, match_config)
+    k0, k1 = f0.keypoints[m.idx[:, 0]], f1.keypoints[m.idx[:, 1]]
+    labels, _ = epipolar_labels(seq, i, j, k0, k1)
+    R, t = seq.relative_pose(i, j)
+    return PairData(seq, i, j, f0, f1, m, labels, R, t)
+
+
+def parse_seq_spec(spec: str) -> tuple[str, range | None]:
+    """'PATH' or 'PATH:a-b' (frames a..b inclusive) -> (path, frames)."""
+    if ":" in spec and spec.rsplit(":", 1)[1].replace("-", "").isdigit():
+        path, rng = spec.rsplit(":", 1)
+        a, b = (int(x) for x in rng.split("-"))
+        return path, range(a, b + 1)
+    return spec, None

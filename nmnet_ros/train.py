@@ -1,0 +1,203 @@
+"""``nmnet train``: fit NM-Net on sequence folders with ground-truth poses.
+
+Features are cached per image; putative matches are every keypoint's nearest neighbour (the
+paper's setting); labels are the squared symmetric epipolar distance < 1e-4 (normalised).
+Each step samples ``batch`` pairs and ``num_corr`` correspondences per pair, mines the
+neighbours on that sample, and minimises balanced BCE (positives weighted by N_neg/N_pos).
+The best checkpoint by validation F-measure is kept; ``last.pt`` makes a run resumable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .cache import FeatureCache
+from .datasets import Sequence
+from .features import HessianAffine
+from .metrics import prf
+from .model import NMNet
+from .neighbors import mine_neighbors
+from .pairs import PairData, make_pair, parse_seq_spec, select_pairs
+
+DEFAULT_CONFIG: dict = {
+    "variant": "nmnet",  # or "nmnet-sp"
+    "epochs": 12,
+    "steps_per_epoch": 40,
+    "batch": 16,
+    "num_corr": 1000,
+    "lr": 1e-3,
+    "seed": 0,
+    "gaps": (1, 2, 3, 4, 5, 6, 7, 8, 9, 10),
+    "max_val_pairs": 60,
+    "min_inliers": 5,
+}
+
+NEIGHBORS = {"nmnet": "compatibility", "nmnet-sp": "spatial"}
+
+
+def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min_inliers: int,
+               log=print) -> list[PairData]:
+    """Labelled pairs from 'PATH[:a-b]' specs, dropping pairs with almost no inliers."""
+    out = []
+    for spec in specs:
+        path, frames = parse_seq_spec(spec)
+        seq = Sequence.load(path)
+        chosen = select_pairs(seq, gaps, frames)
+        kept = [p for p in (make_pair(seq, i, j, cache) for i, j in chosen) if p.labels.sum() >= min_inliers]
+        ratio = np.mean([p.labels.mean() for p in kept]) if kept else 0.0
+        log(f"  {spec}: {len(kept)} pairs (of {len(chosen)}), mean inlier ratio {100 * ratio:.1f}%")
+        out.extend(kept)
+    return out
+
+
+def network_input(pair: PairData, neighbor_kind: str, k: int, sel: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(1,N,4) normalised coordinates and (1,N,k) neighbour indices of a pair (optionally a subset)."""
+    x0, x1 = pair.normalized()
+    k0, k1, a0, a1 = pair.k0, pair.k1, pair.a0, pair.a1
+    if sel is not None:
+        x0, x1, k0, k1, a0, a1 = (v[sel] for v in (x0, x1, k0, k1, a0, a1))
+    nb = mine_neighbors(neighbor_kind, k0, a0, k1, a1, k)
+    x = torch.from_numpy(np.concatenate([x0, x1], 1).astype(np.float32))[None]
+    return x, torch.from_numpy(nb)[None]
+
+
+def balanced_bce(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+    """BCE on logits with positives weighted by N_neg / N_pos per pair (rows of the batch)."""
+    pos = labels.sum(1, keepdim=True).clamp_min(1.0)
+    neg = (1 - labels).sum(1, keepdim=True)
+    w = torch.where(labels > 0, neg / pos, torch.ones_like(labels))
+    return torch.nn.functional.binary_cross_entropy_with_logits(logits, labels, weight=w)
+
+
+@torch.inference_mode()
+def validate(model: NMNet, pairs: list[PairData], neighbor_kind: str) -> dict:
+    """Precision/recall/F (percent) of logit > 0 against the labels, summed over pairs."""
+    model.eval()
+    stats = []
+    for p in pairs:
+        x, nb = network_input(p, neighbor_kind, model.config["k"])
+        pred = (model(x, nb)[0] > 0).numpy()
+        stats.append(prf(pred, p.labels))
+    return {k: float(np.mean([s[k] for s in stats])) for k in ("precision", "recall", "f1")}
+
+
+def _git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              cwd=Path(__file__).parent, check=False).stdout.strip() or "unknown"
+    except OSError:
+        return "unknown"
+
+
+def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: dict | None = None,
+          resume: bool = False, cache_dir: Path | None = None, log=print) -> dict:
+    """Train; writes ``best.pt`` (by validation F), ``last.pt`` and ``history.json`` to out_dir."""
+    c = {**DEFAULT_CONFIG, **(config or {})}
+    if c["variant"] not in NEIGHBORS:
+        raise ValueError(f"unknown variant {c['variant']!r}; use one of {sorted(NEIGHBORS)}")
+    kind = NEIGHBORS[c["variant"]]
+    torch.manual_seed(c["seed"])
+    rng = np.random.default_rng(c["seed"])
+    cache = FeatureCache(HessianAffine(), cache_dir)
+    log("loading training pairs")
+    train_pairs = load_pairs(train_specs, cache, tuple(c["gaps"]), c["min_inliers"], log)
+    log("loading validation pairs")
+    val_pairs = load_pairs(val_specs, cache, tuple(c["gaps"]), c["min_inliers"], log)
+    if not train_pairs:
+        raise ValueError("no training pairs: check the sequence folders and frame ranges")
+    if len(val_pairs) > c["max_val_pairs"]:
+        val_pairs = [val_pairs[i] for i in np.linspace(0, len(val_pairs) - 1, c["max_val_pairs"]).round().astype(int)]
+
+    model = NMNet({"neighbors": kind})
+    opt = torch.optim.Adam(model.parameters(), lr=c["lr"])
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    history: list[dict] = []
+    start_epoch, best_f = 0, -1.0
+    if resume and (out_dir / "last.pt").is_file():
+        ck = torch.load(out_dir / "last.pt", map_location="cpu", weights_only=False)
+        model.load_state_dict(ck["state_dict"])
+        opt.load_state_dict(ck["optimizer"])
+        rng.bit_generator.state = ck["rng"]
+        torch.set_rng_state(ck["torch_rng"])
+        start_epoch, best_f, history = ck["epoch"] + 1, ck["best_f"], ck["history"]
+        log(f"resumed after epoch {ck['epoch']}, best val F {best_f:.2f}")
+
+    t_start = time.time()
+    for epoch in range(start_epoch, c["epochs"]):
+        model.train()
+        losses = []
+        t0 = time.time()
+        for _ in range(c["steps_per_epoch"]):
+            xs, nbs, ys = [], [], []
+            for pi in rng.integers(len(train_pairs), size=c["batch"]):
+                p = train_pairs[pi]
+                n = len(p.labels)
+                sel = rng.choice(n, size=c["num_corr"], replace=n < c["num_corr"])
+                x, nb = network_input(p, kind, model.config["k"], sel)
+                xs.append(x)
+                nbs.append(nb)
+                ys.append(torch.from_numpy(p.labels[sel].astype(np.float32))[None])
+            logits = model(torch.cat(xs), torch.cat(nbs))
+            loss = balanced_bce(logits, torch.cat(ys))
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            losses.append(loss.item())
+        val = validate(model, val_pairs, kind)
+        rec = {"epoch": epoch, "loss": float(np.mean(losses)), **{f"val_{k}": v for k, v in val.items()},
+               "epoch_sec": time.time() - t0}
+        history.append(rec)
+        log(f"epoch {epoch + 1}/{c['epochs']}  loss {rec['loss']:.4f}  val P {val['precision']:.1f} "
+            f"R {val['recall']:.1f} F {val['f1']:.1f}  ({rec['epoch_sec']:.0f}s)")
+        meta = {"config": model.config, "train_config": {k: list(v) if isinstance(v, tuple) else v for k, v in c.items()},
+                "train": train_specs, "val": val_specs, "commit": _git_commit()}
+        if val["f1"] > best_f:
+            best_f = val["f1"]
+            torch.save({"state_dict": model.state_dict(), **meta, "epoch": epoch, "val": val}, out_dir / "best.pt")
+        torch.save({"state_dict": model.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch,
+                    "best_f": best_f, "history": history, "rng": rng.bit_generator.state,
+                    "torch_rng": torch.get_rng_state()}, out_dir / "last.pt")
+        (out_dir / "history.json").write_text(json.dumps(history, indent=1))
+    summary = {"best_val_f1": best_f, "train_pairs": len(train_pairs), "val_pairs": len(val_pairs),
+               "train_minutes": (time.time() - t_start) / 60}
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """CLI options of ``nmnet train``."""
+    p.add_argument("--train", nargs="+", required=True, metavar="SEQ[:a-b]", help="training sequence folders (optional frame range)")
+    p.add_argument("--val", nargs="+", required=True, metavar="SEQ[:a-b]", help="validation sequence folders")
+    p.add_argument("--out", type=Path, required=True, help="output folder for checkpoints")
+    p.add_argument("--variant", choices=sorted(NEIGHBORS), default=DEFAULT_CONFIG["variant"])
+    for key in ("epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs"):
+        p.add_argument("--" + key.replace("_", "-"), type=int, default=DEFAULT_CONFIG[key])
+    p.add_argument("--lr", type=float, default=DEFAULT_CONFIG["lr"])
+    p.add_argument("--gaps", default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    p.add_argument("--cache", type=Path, default=None, help="feature cache folder (default ~/.cache/nmnet_ros)")
+
+
+def parse_gaps(text: str) -> tuple[int, ...]:
+    """'1-10' or '1,3,5' -> tuple of ints."""
+    if "-" in text:
+        a, b = text.split("-")
+        return tuple(range(int(a), int(b) + 1))
+    return tuple(int(x) for x in text.split(","))
+
+
+def main(args: argparse.Namespace) -> int:
+    """Entry point of ``nmnet train``."""
+    cfg = {k: getattr(args, k) for k in ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr")}
+    cfg["gaps"] = parse_gaps(args.gaps)
+    summary = train(args.train, args.val, args.out, cfg, resume=args.resume, cache_dir=args.cache)
+    print(json.dumps(summary, indent=1))
+    return 0
