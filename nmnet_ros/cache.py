@@ -23,6 +23,7 @@ class FeatureCache:
     def __init__(self, detector, root: Path | None = None) -> None:
         self.detector = detector
         self.root = Path(root) if root is not None else default_cache_dir()
+        self._memo: dict[Path, Features] = {}  # one object per frame, shared by all its pairs
 
     def path(self, seq: Sequence, i: int) -> Path:
         """Cache file of frame i; the folder's absolute path is hashed so equal names do not collide."""
@@ -32,6 +33,11 @@ class FeatureCache:
     def __call__(self, seq: Sequence, i: int) -> Features:
         """Features of frame i of ``seq``, from the cache when present."""
         p = self.path(seq, i)
+        if p not in self._memo:
+            self._memo[p] = self._load_or_compute(seq, i, p)
+        return self._memo[p]
+
+    def _load_or_compute(self, seq: Sequence, i: int, p: Path) -> Features:
         if p.is_file():
             try:
                 with np.load(p) as d:

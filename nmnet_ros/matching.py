@@ -20,17 +20,18 @@ class Matches:
     idx: np.ndarray  # (M, 2) int64 indices into (features0, features1)
     distance: np.ndarray  # (M,) float32 descriptor distance to the nearest neighbour
     ratio: np.ndarray  # (M,) float32 distance ratio nearest / second nearest (1 when undefined)
+    mutual: np.ndarray  # (M,) bool: image 1's point has image 0's point as its nearest neighbour too
 
     def __len__(self) -> int:
         return len(self.idx)
 
     def subset(self, keep: np.ndarray) -> Matches:
         """The matches selected by a boolean mask or index array."""
-        return Matches(self.idx[keep], self.distance[keep], self.ratio[keep])
+        return Matches(self.idx[keep], self.distance[keep], self.ratio[keep], self.mutual[keep])
 
 
 def _empty() -> Matches:
-    return Matches(np.zeros((0, 2), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32))
+    return Matches(np.zeros((0, 2), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, bool))
 
 
 @torch.inference_mode()
@@ -55,12 +56,12 @@ def match_descriptors(desc0: np.ndarray, desc1: np.ndarray, config: dict | None 
     nn1 = inds[:, 0]
     d_first = vals[:, 0]
     ratio = vals[:, 0] / vals[:, 1].clamp_min(1e-12) if k == 2 else torch.ones_like(d_first)
+    mutual = dist.argmin(0)[nn1] == torch.arange(len(d0))
     keep = torch.ones(len(d0), dtype=torch.bool)
     if c["ratio"] is not None:
         keep &= ratio < c["ratio"]
     if c["mutual"]:
-        nn0 = dist.argmin(0)
-        keep &= nn0[nn1] == torch.arange(len(d0))
+        keep &= mutual
     i0 = torch.nonzero(keep).squeeze(1)
     idx = torch.stack([i0, nn1[i0]], 1).numpy().astype(np.int64)
-    return Matches(idx, d_first[i0].numpy(), ratio[i0].numpy().astype(np.float32))
+    return Matches(idx, d_first[i0].numpy(), ratio[i0].numpy().astype(np.float32), mutual[i0].numpy())

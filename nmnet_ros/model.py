@@ -54,7 +54,7 @@ class NMNet(nn.Module):
         self.config = {**DEFAULT_CONFIG, **(config or {})}
         w = list(self.config["widths"])
         self.embed = nn.Sequential(nn.Conv2d(1, w[0], (1, 4)), _norm_act(w[0]))
-        self.blocks = nn.Sequential(*[ResBlock(a, b) for a, b in zip([w[0]] + w[:-1], w)])
+        self.blocks = nn.Sequential(*[ResBlock(a, b) for a, b in zip([w[0]] + w[:-1], w, strict=True)])
         self.head = nn.Sequential(nn.Conv2d(w[-1], w[-1], 1), _norm_act(w[-1]), nn.Conv2d(w[-1], 1, 1))
 
     def forward(self, corr: torch.Tensor, neighbors: torch.Tensor) -> torch.Tensor:

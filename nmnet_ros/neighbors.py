@@ -108,23 +108,32 @@ def _pad(idx: np.ndarray, k: int) -> np.ndarray:
 
 
 def compatibility_neighbors_loop(k0: np.ndarray, a0: np.ndarray, k1: np.ndarray, a1: np.ndarray, k: int = 8) -> np.ndarray:
-    """Straightforward per-correspondence version of :func:`compatibility_neighbors` (benchmark baseline, tests)."""
+    """Paper Eq. 2-5 written literally, one correspondence at a time (benchmark baseline, tests).
+
+    Builds the 3x3 T and H = T' T^-1 of every correspondence and applies rho (projective
+    division); used to check the vectorised :func:`compatibility_neighbors`.
+    """
     n = len(k0)
-    t0 = [np.block([[np.asarray(a0[i], np.float64), np.asarray(k0[i], np.float64)[:, None]], [np.zeros((1, 2)), np.ones((1, 1))]]) for i in range(n)]
-    t1 = [np.block([[np.asarray(a1[i], np.float64), np.asarray(k1[i], np.float64)[:, None]], [np.zeros((1, 2)), np.ones((1, 1))]]) for i in range(n)]
-    hs = [t1[i] @ np.linalg.inv(t0[i]) for i in range(n)]
-    out = np.zeros((n, min(k, n)), np.int64)
+    kk = _check(n, k, a0, k1, a1)
+    if n == 0:
+        return np.zeros((0, k), np.int64)
+    T0 = np.zeros((n, 3, 3))
+    T1 = np.zeros((n, 3, 3))
+    T0[:, :2, :2], T0[:, :2, 2], T0[:, 2, 2] = a0, k0, 1.0
+    T1[:, :2, :2], T1[:, :2, 2], T1[:, 2, 2] = a1, k1, 1.0
+    H = T1 @ np.linalg.inv(T0)  # (N,3,3)
+    p0 = np.c_[np.asarray(k0, np.float64), np.ones(n)]
+    p1 = np.asarray(k1, np.float64)
+    out = np.empty((n, kk), np.int64)
     for i in range(n):
-        ki = np.array([k0[i][0], k0[i][1], 1.0])
-        errs = np.empty(n)
-        for j in range(n):
-            kj = np.array([k0[j][0], k0[j][1], 1.0])
-            pi, pj = hs[j] @ ki, hs[i] @ kj
-            e_ji = np.abs(pi[:2] / pi[2] - np.asarray(k1[i], np.float64)).sum()
-            e_ij = np.abs(pj[:2] / pj[2] - np.asarray(k1[j], np.float64)).sum()
-            errs[j] = e_ji + e_ij
-        errs[i] = -1.0
-        out[i] = np.argsort(errs, kind="stable")[: min(k, n)]
+        hj_ki = H @ p0[i]  # H_j [k_i; 1] for every j: (N,3)
+        e_ji = np.abs(hj_ki[:, :2] / hj_ki[:, 2:] - p1[i]).sum(1)
+        hi_kj = p0 @ H[i].T  # H_i [k_j; 1] for every j
+        e_ij = np.abs(hi_kj[:, :2] / hi_kj[:, 2:] - p1).sum(1)
+        err = e_ji + e_ij
+        err[i] = -1.0
+        part = np.argpartition(err, kk - 1)[:kk] if kk < n else np.arange(n)
+        out[i] = part[np.argsort(err[part], kind="stable")]
     return _pad(out, k)
 
 

@@ -84,3 +84,14 @@ def parse_seq_spec(spec: str) -> tuple[str, range | None]:
         a, b = (int(x) for x in rng.split("-"))
         return path, range(a, b + 1)
     return spec, None
+
+
+def to_correspondences(pair: PairData, with_labels: bool = True):
+    """The selectors' view of a pair (imported lazily: selectors pull in the network)."""
+    from .selectors import Correspondences
+
+    x0, x1 = pair.normalized()
+    cam = pair.seq.camera
+    size = (cam.width, cam.height)
+    return Correspondences(pair.k0, pair.k1, pair.a0, pair.a1, x0, x1, pair.matches.ratio, pair.matches.mutual,
+                           cam.focal, size, size, pair.labels if with_labels else None)

@@ -1,0 +1,137 @@
+"""``nmnet eval``: every selector on the same putative matches, against ground truth.
+
+Per method: precision / recall / F-measure of the selected matches (mean over pairs, the
+paper's P/R/F), pose AUC@5/10/20 and median rotation/translation errors (a failed pair counts
+as 180 degrees), and selection + pose time per pair.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .cache import FeatureCache
+from .datasets import Sequence
+from .features import HessianAffine
+from .geometry import pose_auc, pose_error_deg
+from .metrics import prf
+from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, to_correspondences
+from .selectors import METHODS, build
+from .train import parse_gaps
+
+
+def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, stride: int = 1,
+                    max_pairs: int | None = None) -> list[PairData]:
+    """Pairs of every 'PATH[:a-b]' (pairs.txt decides when present)."""
+    pairs = []
+    for spec in specs:
+        path, frames = parse_seq_spec(spec)
+        seq = Sequence.load(path)
+        chosen = select_pairs(seq, gaps, frames)
+        if seq.pairs_file is None:
+            chosen = [(i, j) for i, j in chosen if i % stride == 0]
+        if max_pairs and len(chosen) > max_pairs:
+            chosen = [chosen[k] for k in np.linspace(0, len(chosen) - 1, max_pairs).round().astype(int)]
+        if not chosen:
+            raise ValueError(f"{path}: no pairs with ground truth and motion to evaluate")
+        pairs += [make_pair(seq, i, j, cache) for i, j in chosen]
+    return pairs
+
+
+def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
+             config: dict | None = None) -> dict:
+    """Run every method on every pair; returns {method: metrics} (+ raw errors under '_errors')."""
+    out, errors = {}, {}
+    for name in methods:
+        select = build(name, config, weights)
+        prfs, errs, secs = [], [], []
+        for p in pairs:
+            c = to_correspondences(p)
+            t0 = time.perf_counter()
+            sel = select(c)
+            secs.append(time.perf_counter() - t0)
+            prfs.append(prf(sel.mask, p.labels))
+            errs.append(pose_error_deg(sel.pose, p.R, p.t))
+        e = np.array(errs)
+        aucs = pose_auc(e.max(1))
+        out[name] = {
+            "precision": float(np.mean([x["precision"] for x in prfs])),
+            "recall": float(np.mean([x["recall"] for x in prfs])),
+            "f1": float(np.mean([x["f1"] for x in prfs])),
+            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2],
+            "median_rot_deg": float(np.median(e[:, 0])), "median_trans_deg": float(np.median(e[:, 1])),
+            "pairs": len(pairs), "sec_per_pair": float(np.mean(secs)),
+        }
+        errors[name] = e.max(1)
+    return {"metrics": out, "errors": errors}
+
+
+def markdown_table(metrics: dict) -> str:
+    """The results as a markdown table."""
+    lines = ["| method | P | R | F | AUC@5 | AUC@10 | AUC@20 | med. rot ° | med. trans ° | ms/pair |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for name, m in metrics.items():
+        lines.append(f"| {name} | {m['precision']:.1f} | {m['recall']:.1f} | {m['f1']:.1f} | {m['auc5']:.1f} | "
+                     f"{m['auc10']:.1f} | {m['auc20']:.1f} | {m['median_rot_deg']:.2f} | {m['median_trans_deg']:.2f} | "
+                     f"{1000 * m['sec_per_pair']:.1f} |")
+    return "\n".join(lines)
+
+
+def plot_curves(errors: dict[str, np.ndarray], path: Path) -> None:
+    """Recall (fraction of pairs) vs pose error threshold, one curve per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    th = np.linspace(0, 20, 201)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name, e in errors.items():
+        ax.plot(th, [(e <= t).mean() for t in th], label=name)
+    ax.set_xlabel("pose error threshold (deg, max of rotation and translation)")
+    ax.set_ylabel("fraction of pairs")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """CLI options of ``nmnet eval``."""
+    p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help="sequence folders (optional frame range)")
+    p.add_argument("--methods", default="nmnet,nmnet-sp,ratio,ransac,magsac,ratio+magsac,nmnet+magsac,oracle",
+                   help=f"comma-separated, from: {', '.join(METHODS)}")
+    p.add_argument("--gaps", default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
+    p.add_argument("--stride", type=int, default=1, help="use every n-th frame as a pair's first frame")
+    p.add_argument("--max-pairs", type=int, default=None, help="at most this many pairs per sequence (evenly spread)")
+    p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (default: shipped)")
+    p.add_argument("--weights-sp", type=Path, default=None, help="NM-Net-sp weights (default: shipped)")
+    p.add_argument("--json", type=Path, default=None, help="write {method: metrics} as JSON")
+    p.add_argument("--plot", type=Path, default=Path("eval_curves.png"), help="recall-vs-error plot (PNG)")
+    p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
+
+
+def main(args: argparse.Namespace) -> int:
+    """Entry point of ``nmnet eval``."""
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+    weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
+    pairs = load_eval_pairs(args.seqs, parse_gaps(args.gaps), FeatureCache(HessianAffine(), args.cache),
+                            args.stride, args.max_pairs)
+    res = evaluate(pairs, methods, weights)
+    print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%\n")
+    print(markdown_table(res["metrics"]))
+    plot_curves(res["errors"], args.plot)
+    print(f"\nplot: {args.plot}")
+    if args.json:
+        args.json.write_text(json.dumps(res["metrics"], indent=1))
+    return 0

@@ -1,0 +1,113 @@
+"""Frontend: one camera frame in, selected matches and relative pose to the previous frame out.
+
+The node, the bag tools and the demo are thin shells around this object. It keeps the previous
+frame's features so each frame is detected once.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
+from .features import Features, HessianAffine
+from .geometry import Camera, PoseEstimate
+from .matching import match_descriptors
+from .selectors import Correspondences, build
+
+DEFAULT_CONFIG: dict = {
+    "max_keypoints": FEATURE_DEFAULTS["max_keypoints"],
+    "selector": "nmnet",  # any method of nmnet_ros.selectors except 'oracle'
+    "weights": None,  # NM-Net weights file; None = shipped
+    "score_threshold": 0.5,
+    "ratio": None,  # optional ratio test on the putative matches (the paper uses none)
+    "mutual": False,
+    "min_matches": 8,
+    "static_flow_px": 1.0,  # median flow of the selected matches below this = camera not moving
+}
+
+
+@dataclass
+class FrameResult:
+    """What the front end has to say about one frame (relative to the previous one)."""
+
+    stamp: float
+    status: str  # ok | first_frame | too_few_matches | no_motion | pose_failed | size_changed
+    k0: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))  # previous frame, pixels
+    k1: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))  # current frame, pixels
+    scores: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    mask: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    pose: PoseEstimate | None = None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    num_keypoints: int = 0
+
+    @property
+    def num_selected(self) -> int:
+        return int(self.mask.sum())
+
+
+class Frontend:
+    """Hessian-affine + NN matching + NM-Net (or another selector) + relative pose, frame to frame."""
+
+    def __init__(self, camera: Camera | None = None, config: dict | None = None) -> None:
+        self.config = {**DEFAULT_CONFIG, **(config or {})}
+        c = self.config
+        self.camera = camera
+        self.detector = HessianAffine({"max_keypoints": c["max_keypoints"]})
+        weights = {"nmnet": c["weights"]} if c["weights"] else None
+        self.select = build(c["selector"], {"score_threshold": c["score_threshold"]}, weights)
+        self.prev: tuple[float, Features, tuple[int, int]] | None = None
+
+    def reset(self) -> None:
+        """Forget the previous frame (the next frame starts a new chain)."""
+        self.prev = None
+
+    def detect(self, image: np.ndarray) -> Features:
+        """Features of one image (the expensive stage)."""
+        return self.detector(image)
+
+    def process(self, image: np.ndarray, stamp: float) -> FrameResult:
+        """Detect, then relate to the previous frame; always keeps this frame as the next reference."""
+        t0 = time.perf_counter()
+        feats = self.detect(image)
+        return self.process_features(feats, (image.shape[1], image.shape[0]), stamp,
+                                     {"detect": 1000 * (time.perf_counter() - t0)})
+
+    def process_features(self, feats: Features, size: tuple[int, int], stamp: float,
+                         timings: dict[str, float] | None = None) -> FrameResult:
+        """Match pre-computed features against the previous frame's and estimate the pose."""
+        if self.camera is None:
+            raise RuntimeError("Frontend has no camera: set .camera (from CameraInfo or parameters) first")
+        timings = dict(timings or {})
+        prev, self.prev = self.prev, (stamp, feats, size)
+        if prev is None:
+            return FrameResult(stamp, "first_frame", timings_ms=timings, num_keypoints=len(feats))
+        if prev[2] != size:
+            return FrameResult(stamp, "size_changed", timings_ms=timings, num_keypoints=len(feats))
+        c = self.config
+        t = time.perf_counter()
+        m = match_descriptors(prev[1].descriptors, feats.descriptors, {"ratio": c["ratio"], "mutual": c["mutual"]})
+        timings["match"] = 1000 * (time.perf_counter() - t)
+        k0, k1 = prev[1].keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
+        base = dict(k0=k0, k1=k1, timings_ms=timings, num_keypoints=len(feats),
+                    scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool))
+        if len(m) < c["min_matches"]:
+            return FrameResult(stamp, "too_few_matches", **base)
+        corr = Correspondences(k0, k1, prev[1].frames[m.idx[:, 0]], feats.frames[m.idx[:, 1]],
+                               self.camera.normalize(k0), self.camera.normalize(k1), m.ratio, m.mutual,
+                               self.camera.focal, size, size)
+        t = time.perf_counter()
+        sel = self.select(corr)
+        timings["select+pose"] = 1000 * (time.perf_counter() - t)
+        base["scores"] = sel.scores.astype(np.float32) if sel.scores is not None else sel.mask.astype(np.float32)
+        base["mask"] = sel.mask
+        if sel.mask.sum() < c["min_matches"]:
+            return FrameResult(stamp, "too_few_matches", **base)
+        flow = np.median(np.linalg.norm(k1[sel.mask] - k0[sel.mask], axis=1))
+        if flow < c["static_flow_px"]:
+            return FrameResult(stamp, "no_motion", **base)
+        if sel.pose is None:
+            return FrameResult(stamp, "pose_failed", **base)
+        return FrameResult(stamp, "ok", pose=sel.pose, **base)

@@ -1,0 +1,174 @@
+"""Correspondence selectors behind one interface, all starting from the same putative matches.
+
+``nmnet``/``nmnet-sp``: the network's scores, pose by the weighted eight-point on them;
+``ratio``, ``gms``, ``lpm``: classic filters, pose by the eight-point on what they keep;
+``ransac``/``magsac``: robust essential-matrix fits on everything; ``ratio+magsac``: mutual NN +
+ratio test then MAGSAC++ (the strongest classic pipeline); ``nmnet+magsac``: MAGSAC++ on the
+network's selection; ``oracle``: ground-truth inliers + MAGSAC++ (the ceiling).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+
+from .geometry import PoseEstimate, estimate_essential, recover_pose, weighted_eight_point
+from .model import NMNet, load_model
+from .neighbors import mine_neighbors
+
+DEFAULT_CONFIG: dict = {
+    "threshold_px": 1.0,  # robust-estimator inlier threshold, pixels
+    "ratio": 0.8,
+    "score_threshold": 0.5,  # NM-Net probability above which a match is selected
+}
+
+
+@dataclass
+class Correspondences:
+    """Putative matches of one image pair, as every selector sees them."""
+
+    k0: np.ndarray  # (M,2) pixels, image 0
+    k1: np.ndarray  # (M,2) pixels, image 1
+    a0: np.ndarray  # (M,2,2) affine frames
+    a1: np.ndarray
+    x0: np.ndarray  # (M,2) normalised (undistorted) coordinates
+    x1: np.ndarray
+    ratio: np.ndarray  # (M,) nearest/second-nearest descriptor distance ratio
+    mutual: np.ndarray  # (M,) bool mutual nearest neighbour
+    focal: float  # pixels, converts pixel thresholds to normalised ones
+    size0: tuple[int, int]  # (width, height) of image 0
+    size1: tuple[int, int]
+    labels: np.ndarray | None = None  # ground truth, only the oracle reads it
+
+    def __len__(self) -> int:
+        return len(self.k0)
+
+
+@dataclass
+class Selection:
+    """A selector's output: which matches it keeps, optional scores, and the pose."""
+
+    mask: np.ndarray  # (M,) bool
+    scores: np.ndarray | None
+    pose: PoseEstimate | None
+
+
+def _filtered(c: Correspondences, mask: np.ndarray) -> Selection:
+    """A filter's selection with the pose from the plain eight-point on what it keeps."""
+    E = weighted_eight_point(c.x0, c.x1, mask.astype(np.float64)) if len(c) else None
+    return Selection(mask, None, recover_pose(E, c.x0, c.x1, mask) if E is not None else None)
+
+
+def _robust(c: Correspondences, keep: np.ndarray, method: str, cfg: dict) -> Selection:
+    keep = np.asarray(keep, bool)
+    mask = np.zeros(len(c), bool)
+    est = estimate_essential(c.x0[keep], c.x1[keep], method, cfg["threshold_px"] / c.focal)
+    if est is None:
+        return Selection(mask, None, None)
+    E, inl = est
+    pose = recover_pose(E, c.x0[keep], c.x1[keep], inl)
+    mask[np.flatnonzero(keep)[inl]] = True
+    return Selection(mask, None, pose)
+
+
+def nmnet_logits(model: NMNet, c: Correspondences) -> np.ndarray:
+    """Network logits of every correspondence (neighbours mined as the model was trained)."""
+    if len(c) == 0:
+        return np.zeros(0, np.float32)
+    nb = mine_neighbors(model.config["neighbors"], c.k0, c.a0, c.k1, c.a1, model.config["k"])
+    x = torch.from_numpy(np.concatenate([c.x0, c.x1], 1).astype(np.float32))[None]
+    with torch.inference_mode():
+        return model(x, torch.from_numpy(nb)[None])[0].numpy()
+
+
+def nmnet_select(model: NMNet, c: Correspondences, cfg: dict) -> Selection:
+    """Scores = sigmoid(logits); pose by the eight-point weighted with relu(tanh(logit))."""
+    logits = nmnet_logits(model, c)
+    scores = 1.0 / (1.0 + np.exp(-logits))
+    mask = scores > cfg["score_threshold"]
+    w = np.maximum(np.tanh(logits), 0.0)
+    E = weighted_eight_point(c.x0, c.x1, w) if len(c) else None
+    pose = recover_pose(E, c.x0, c.x1, mask) if E is not None else None
+    return Selection(mask, scores, pose)
+
+
+def gms_mask(c: Correspondences) -> np.ndarray:
+    """Grid-based motion statistics (cv2.xfeatures2d.matchGMS) on the putative matches."""
+    if len(c) == 0:
+        return np.zeros(0, bool)
+    kp0 = [cv2.KeyPoint(float(x), float(y), 1.0) for x, y in c.k0]
+    kp1 = [cv2.KeyPoint(float(x), float(y), 1.0) for x, y in c.k1]
+    dm = [cv2.DMatch(i, i, 0.0) for i in range(len(c))]
+    kept = cv2.xfeatures2d.matchGMS(c.size0, c.size1, kp0, kp1, dm, withRotation=False, withScale=False,
+                                    thresholdFactor=6.0)
+    mask = np.zeros(len(c), bool)
+    mask[[m.queryIdx for m in kept]] = True
+    return mask
+
+
+def lpm_mask(c: Correspondences, rounds: tuple[tuple[int, float], ...] = ((6, 0.8), (4, 0.5)), tau: float = 0.2) -> np.ndarray:
+    """Locality Preserving Matching (Ma et al., IJCV 2019).
+
+    A match is kept when its K spatial neighbours in image 0 are mostly also its neighbours in
+    image 1 and move consistently (cosine of motion vectors x length ratio > tau). Two rounds;
+    the second searches neighbours among the first round's survivors.
+    """
+    n = len(c)
+    keep = np.ones(n, bool)
+    if n < 8:
+        return np.zeros(n, bool)
+    motion = c.k1 - c.k0
+    for K, lam in rounds:
+        ref = np.flatnonzero(keep)
+        if len(ref) <= K:
+            return np.zeros(n, bool)
+        k = K + 1
+        t0 = torch.cdist(torch.as_tensor(c.k0, dtype=torch.float32), torch.as_tensor(c.k0[ref], dtype=torch.float32))
+        t1 = torch.cdist(torch.as_tensor(c.k1, dtype=torch.float32), torch.as_tensor(c.k1[ref], dtype=torch.float32))
+        n0 = ref[t0.topk(k, largest=False).indices.numpy()]
+        n1 = ref[t1.topk(k, largest=False).indices.numpy()]
+        cost = np.zeros(n)
+        for i in range(n):
+            a = n0[i][n0[i] != i][:K]
+            b = n1[i][n1[i] != i][:K]
+            common = np.intersect1d(a, b, assume_unique=True)
+            cost[i] = K - len(common)
+            if len(common):
+                vi, vj = motion[i], motion[common]
+                ni, nj = np.linalg.norm(vi), np.linalg.norm(vj, axis=1)
+                cos = (vj @ vi) / np.maximum(ni * nj, 1e-9)
+                ratio = np.minimum(ni, nj) / np.maximum(np.maximum(ni, nj), 1e-9)
+                cost[i] += np.sum(cos * ratio <= tau)
+        keep = cost / K <= lam
+    return keep
+
+
+def build(name: str, config: dict | None = None, weights: dict[str, str] | None = None) -> Callable[[Correspondences], Selection]:
+    """The selector called ``name`` as a function of the correspondences."""
+    cfg = {**DEFAULT_CONFIG, **(config or {})}
+    weights = weights or {}
+    if name in ("nmnet", "nmnet-sp", "nmnet+magsac"):
+        variant = "nmnet-sp" if name == "nmnet-sp" else "nmnet"
+        model = load_model(weights.get(variant), variant)
+        if name == "nmnet+magsac":
+            return lambda c: _robust(c, nmnet_select(model, c, cfg).mask, "magsac", cfg)
+        return lambda c: nmnet_select(model, c, cfg)
+    table: dict[str, Callable[[Correspondences], Selection]] = {
+        "ratio": lambda c: _filtered(c, c.ratio < cfg["ratio"]),
+        "ransac": lambda c: _robust(c, np.ones(len(c), bool), "ransac", cfg),
+        "magsac": lambda c: _robust(c, np.ones(len(c), bool), "magsac", cfg),
+        "ratio+magsac": lambda c: _robust(c, c.mutual & (c.ratio < cfg["ratio"]), "magsac", cfg),
+        "gms": lambda c: _filtered(c, gms_mask(c)),
+        "lpm": lambda c: _filtered(c, lpm_mask(c)),
+        "oracle": lambda c: _robust(c, c.labels if c.labels is not None else np.zeros(len(c), bool), "magsac", cfg),
+    }
+    if name not in table:
+        raise ValueError(f"unknown method {name!r}; choose from {', '.join(METHODS)}")
+    return table[name]
+
+
+METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ransac", "magsac", "gms", "lpm", "nmnet+magsac", "oracle")

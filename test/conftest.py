@@ -1,0 +1,35 @@
+"""Shared fixtures: the real data in ../shared/data and a session-wide feature cache."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+
+
+def data_dir(name: str) -> Path:
+    """A folder of ../shared/data; skips the test when the shared data is not beside the clone."""
+    p = DATA / name
+    if not p.is_dir():
+        pytest.skip(f"{p} not present (the shared data sits beside the clone in development and CI)")
+    return p
+
+
+@pytest.fixture(scope="session")
+def detector():
+    from nmnet_ros.features import HessianAffine
+
+    return HessianAffine()
+
+
+@pytest.fixture(scope="session")
+def cache(detector, tmp_path_factory):
+    from nmnet_ros.cache import FeatureCache
+
+    # NMNET_TEST_CACHE reuses a developer's feature cache between runs; CI starts empty.
+    root = os.environ.get("NMNET_TEST_CACHE") or tmp_path_factory.mktemp("features")
+    return FeatureCache(detector, Path(root))

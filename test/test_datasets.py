@@ -1,0 +1,55 @@
+"""Sequence folder reader: real folders, pairs.txt, bad folders with clear errors."""
+
+import shutil
+
+import numpy as np
+import pytest
+
+from nmnet_ros.datasets import DatasetError, Sequence, has_baseline
+from nmnet_ros.pairs import select_pairs
+
+from .conftest import data_dir
+
+
+def test_reads_real_sequence_and_relative_pose():
+    seq = Sequence.load(data_dir("kitti-07"))
+    assert len(seq) == 160 and seq.poses.shape == (160, 4, 4)
+    assert seq.image(0).shape == (370, 1226)
+    R, t = seq.relative_pose(0, 1)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+    assert 0.05 < np.linalg.norm(t) < 2.0 and t[2] < 0  # driving forward: the scene comes closer
+    assert seq.pairs((1, 2), range(0, 4)) == [(0, 1), (1, 2), (2, 3), (0, 2), (1, 3)]
+
+
+def test_static_camera_pairs_are_excluded():
+    seq = Sequence.load(data_dir("euroc-v101-cam0"))
+    assert not has_baseline(seq, 0, 1)
+    assert select_pairs(seq, (1, 5)) == []
+
+
+def test_pairs_txt_is_honoured(tmp_path):
+    src = data_dir("strecha-entry-p10")
+    dst = tmp_path / "entry"
+    shutil.copytree(src, dst)
+    (dst / "pairs.txt").write_text("# i j\n0 3\n2 5\n")
+    seq = Sequence.load(dst)
+    assert seq.pairs((1,)) == [(0, 3), (2, 5)]
+    (dst / "pairs.txt").write_text("0 99\n")
+    with pytest.raises(DatasetError, match="pairs.txt.*out of range"):
+        Sequence.load(dst)
+
+
+def test_empty_folder_names_missing_camera_yaml(tmp_path):
+    with pytest.raises(DatasetError, match="camera.yaml"):
+        Sequence.load(tmp_path)
+
+
+def test_missing_images_txt_and_bad_yaml(tmp_path):
+    shutil.copy(data_dir("kitti-07") / "camera.yaml", tmp_path / "camera.yaml")
+    with pytest.raises(DatasetError, match="images.txt"):
+        Sequence.load(tmp_path)
+    (tmp_path / "camera.yaml").write_text("image_width: 10\ncamera_matrix: {data: [0,0,0,0,0,0,0,0,1]}\n")
+    with pytest.raises(DatasetError, match="camera.yaml.*focal"):
+        Sequence.load(tmp_path)
+    with pytest.raises(DatasetError, match="not a directory"):
+        Sequence.load(tmp_path / "nope")

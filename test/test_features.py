@@ -1,0 +1,84 @@
+"""Hessian-affine features: bad images, and local affine frames against the boat homographies."""
+
+import cv2
+import numpy as np
+import pytest
+
+from nmnet_ros.features import Features
+from nmnet_ros.matching import match_descriptors
+
+from .conftest import data_dir
+
+
+@pytest.mark.parametrize("image", [
+    np.zeros((480, 640), np.uint8),  # blank
+    np.full((480, 640, 3), 128, np.uint8),  # blank colour
+    np.zeros((10, 10), np.uint8),  # tiny
+    np.zeros((0, 0), np.uint8),  # empty
+])
+def test_blank_tiny_empty_images_give_empty_features(detector, image):
+    f = detector(image)
+    assert len(f) == 0 and f.frames.shape == (0, 2, 2) and f.descriptors.shape == (0, 128)
+
+
+def test_bad_channel_count_is_a_clear_error(detector):
+    with pytest.raises(ValueError, match="channels"):
+        detector(np.zeros((64, 64, 2), np.uint8))
+
+
+def test_colour_and_mono_give_features(detector):
+    img = cv2.imread(str(data_dir("strecha-fountain-p11") / "images" / "0000.jpg"), cv2.IMREAD_COLOR)
+    img = cv2.resize(img, (384, 256))
+    fc, fm = detector(img), detector(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+    assert len(fc) > 200 and len(fm) > 200
+    for f in (fc, fm):
+        assert f.keypoints.shape == (len(f), 2) and f.frames.shape == (len(f), 2, 2)
+        assert np.all(np.abs(np.linalg.det(f.frames)) > 0)
+        np.testing.assert_allclose(np.linalg.norm(f.descriptors, axis=1), 1.0, atol=1e-4)
+
+
+def homography_jacobian(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """d(H(x))/dx at each point, (N,2,2)."""
+    p = np.c_[pts, np.ones(len(pts))] @ H.T
+    w = p[:, 2]
+    J = np.empty((len(pts), 2, 2))
+    for r in range(2):
+        for c in range(2):
+            J[:, r, c] = (H[r, c] * w - p[:, r] * H[2, c]) / w**2
+    return J
+
+
+def frame_errors(f1: Features, f2: Features, H: np.ndarray):
+    m = match_descriptors(f1.descriptors, f2.descriptors, {"ratio": 0.8, "mutual": True})
+    k1, k2 = f1.keypoints[m.idx[:, 0]].astype(float), f2.keypoints[m.idx[:, 1]].astype(float)
+    p = np.c_[k1, np.ones(len(k1))] @ H.T
+    correct = np.linalg.norm(p[:, :2] / p[:, 2:] - k2, axis=1) < 3.0
+    J = homography_jacobian(H, k1[correct])
+    A1, A2 = f1.frames[m.idx[correct, 0]].astype(float), f2.frames[m.idx[correct, 1]].astype(float)
+    err = np.linalg.norm(A2 @ np.linalg.inv(A1) - J, axis=(1, 2)) / np.linalg.norm(J, axis=(1, 2))
+    return int(correct.sum()), float(np.median(err))
+
+
+def sift_similarity_features(img: np.ndarray) -> Features:
+    sift = cv2.SIFT_create(2000)
+    kps, desc = sift.detectAndCompute(img, None)
+    ang = np.radians([k.angle for k in kps])
+    s = np.array([k.size for k in kps])
+    A = s[:, None, None] * np.stack([np.stack([np.cos(ang), -np.sin(ang)], 1), np.stack([np.sin(ang), np.cos(ang)], 1)], 1)
+    d = desc / np.linalg.norm(desc, axis=1, keepdims=True)
+    return Features(np.array([k.pt for k in kps], np.float32), A.astype(np.float32), d.astype(np.float32), np.zeros(len(kps), np.float32))
+
+
+def test_affine_frames_follow_the_homography_on_boat(detector):
+    root = data_dir("oxford-boat")
+    img1 = cv2.imread(str(root / "images" / "img1.pgm"), cv2.IMREAD_GRAYSCALE)
+    f1, s1 = detector(img1), sift_similarity_features(img1)
+    for n, min_correct in ((2, 600), (3, 1)):
+        H = np.loadtxt(root / f"H_1_to_{n}.txt")
+        img = cv2.imread(str(root / "images" / f"img{n}.pgm"), cv2.IMREAD_GRAYSCALE)
+        correct, med = frame_errors(f1, detector(img), H)
+        s_correct, s_med = frame_errors(s1, sift_similarity_features(img), H)
+        print(f"boat 1->{n}: Hessian-affine {correct} correct, median frame error {med:.3f}; "
+              f"SIFT similarity {s_correct} correct, median {s_med:.3f}")
+        assert correct >= min_correct
+        assert med <= 0.15

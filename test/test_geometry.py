@@ -1,0 +1,134 @@
+"""Geometry: normalisation, essential matrix and pose on real data, metrics, bad input."""
+
+import numpy as np
+import pytest
+
+from nmnet_ros.datasets import Sequence
+from nmnet_ros.geometry import (
+    Camera,
+    CameraError,
+    essential_from_pose,
+    estimate_essential,
+    pose_auc,
+    pose_error_deg,
+    recover_pose,
+    rotation_error_deg,
+    sym_epipolar_sq,
+    translation_error_deg,
+    weighted_eight_point,
+)
+from nmnet_ros.pairs import make_pair
+
+from .conftest import data_dir
+
+K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+
+
+def rot(axis, deg):
+    a = np.radians(deg)
+    x, y, z = np.asarray(axis, float) / np.linalg.norm(axis)
+    Kx = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+    return np.eye(3) + np.sin(a) * Kx + (1 - np.cos(a)) * Kx @ Kx
+
+
+def synthetic(n=200, seed=0):
+    rng = np.random.default_rng(seed)
+    X = np.c_[rng.uniform(-2, 2, (n, 2)), rng.uniform(4, 10, n)]
+    R, t = rot([0.1, 1, 0.2], 5), np.array([0.5, 0.05, 0.1])
+    X1 = X @ R.T + t
+    return X[:, :2] / X[:, 2:], X1[:, :2] / X1[:, 2:], R, t
+
+
+def test_auc_hand_computed():
+    # errors 1, 2, 8 deg -> recall curve (0,0) (1,1/3) (2,2/3) (8,1), trapezoids as SuperGlue.
+    # AUC@5:  [0,1] 1/6 + [1,2] 1/2 + [2,5] held at 2/3 -> 2          = 8/3  / 5
+    # AUC@10: 1/6 + 1/2 + [2,8] (2/3+1)/2*6 = 5 + [8,10] 1*2 = 2       = 23/3 / 10
+    a5, a10, a20 = pose_auc([1.0, 2.0, 8.0])
+    assert a5 == pytest.approx(8 / 3 / 5)
+    assert a10 == pytest.approx(23 / 3 / 10)
+    assert a20 == pytest.approx((23 / 3 + 10) / 20)
+    assert pose_auc([180.0, 180.0]) == [0.0, 0.0, 0.0]
+    assert pose_auc([]) == [0.0, 0.0, 0.0]
+
+
+def test_metrics_conventions():
+    R = rot([0, 0, 1], 10)
+    assert rotation_error_deg(R, np.eye(3)) == pytest.approx(10)
+    assert translation_error_deg([1, 0, 0], [-1, 0, 0]) == pytest.approx(0)  # sign-agnostic
+    assert translation_error_deg([1, 0, 0], [0, 1, 0]) == pytest.approx(90)
+    assert pose_error_deg(None, np.eye(3), np.ones(3)) == (180.0, 180.0)
+
+
+def test_exact_synthetic_pose_from_all_estimators():
+    x0, x1, R, t = synthetic()
+    E = essential_from_pose(R, t)
+    assert np.max(sym_epipolar_sq(E, x0, x1)) < 1e-20
+    for method in ("magsac", "ransac"):
+        E_est, mask = estimate_essential(x0, x1, method, 1e-4)
+        pose = recover_pose(E_est, x0, x1, mask)
+        r, tt = pose_error_deg(pose, R, t)
+        assert r < 0.01 and tt < 0.05
+    E8 = weighted_eight_point(x0, x1, np.ones(len(x0)))
+    pose = recover_pose(E8, x0, x1)
+    assert max(pose_error_deg(pose, R, t)) < 0.01
+
+
+def test_weighted_eight_point_ignores_zero_weight_outliers():
+    x0, x1, R, t = synthetic(seed=2)
+    rng = np.random.default_rng(0)
+    x1o = x1.copy()
+    x1o[:80] = rng.uniform(-0.5, 0.5, (80, 2))
+    w = np.r_[np.zeros(80), np.ones(len(x0) - 80)]
+    pose = recover_pose(weighted_eight_point(x0, x1o, w), x0, x1o, w > 0)
+    assert max(pose_error_deg(pose, R, t)) < 0.01
+    pose_bad = recover_pose(weighted_eight_point(x0, x1o, np.ones(len(x0))), x0, x1o)
+    assert max(pose_error_deg(pose_bad, R, t)) > 1.0
+
+
+def test_magsac_on_ground_truth_inliers_kitti(cache):
+    seq = Sequence.load(data_dir("kitti-07"))
+    errs = []
+    for i in range(0, 155, 10):
+        for g in range(1, 6):
+            p = make_pair(seq, i, i + g, cache)
+            x0, x1 = p.normalized()
+            x0, x1 = x0[p.labels], x1[p.labels]
+            est = estimate_essential(x0, x1, "magsac", 1.0 / seq.camera.focal)
+            pose = recover_pose(est[0], x0, x1, est[1]) if est else None
+            errs.append(pose_error_deg(pose, p.R, p.t))
+    errs = np.array(errs)
+    ok = np.mean((errs[:, 0] < 1) & (errs[:, 1] < 1))
+    print(f"kitti-07 gaps 1-5, {len(errs)} pairs: {100 * ok:.1f}% under 1 deg; median rot {np.median(errs[:, 0]):.3f} "
+          f"trans {np.median(errs[:, 1]):.3f}")
+    assert ok >= 0.95
+
+
+def test_distortion_normalisation_roundtrip():
+    import cv2
+
+    cam = Camera(K, [-0.28, 0.07, 0.0002, 0.00002, 0.0])
+    pts_n = np.array([[0.1, -0.2], [0.3, 0.25], [-0.4, 0.0]])
+    px = cv2.projectPoints(np.c_[pts_n, np.ones(3)], np.zeros(3), np.zeros(3), K, cam.dist)[0].reshape(-1, 2)
+    np.testing.assert_allclose(cam.normalize(px), pts_n, atol=1e-5)
+
+
+@pytest.mark.parametrize("bad_k, msg", [
+    (np.zeros((3, 3)), "focal"),
+    (np.full((3, 3), np.nan), "NaN"),
+    (np.eye(2), "3x3"),
+])
+def test_bad_intrinsics_raise(bad_k, msg):
+    with pytest.raises(CameraError, match=msg):
+        Camera(bad_k)
+
+
+def test_too_few_and_mismatched_points():
+    x0, x1, _, _ = synthetic(7)
+    assert estimate_essential(x0, x1) is None
+    assert weighted_eight_point(x0, x1, np.ones(7)) is None
+    with pytest.raises(ValueError, match="differ in length"):
+        estimate_essential(x0, x1[:5])
+    with pytest.raises(ValueError, match="weights length"):
+        weighted_eight_point(*synthetic(20)[:2], np.ones(3))
+    with pytest.raises(ValueError, match="unknown robust estimator"):
+        estimate_essential(*synthetic(20)[:2], method="lmeds2")

@@ -1,0 +1,63 @@
+"""NM-Net network: size, order-insensitivity, determinism, sizes, bad weights."""
+
+import numpy as np
+import pytest
+import torch
+
+from nmnet_ros.model import NMNet, WeightsError, load_model
+from nmnet_ros.neighbors import compatibility_neighbors
+
+
+def inputs(n, seed=0):
+    rng = np.random.default_rng(seed)
+    k0 = rng.uniform(0, 600, (n, 2))
+    k1 = k0 + rng.normal(0, 20, (n, 2))
+    a0 = rng.normal(0, 3, (n, 2, 2)) + 8 * np.eye(2)
+    a1 = a0 + rng.normal(0, 1, (n, 2, 2))
+    x = torch.tensor(np.c_[(k0 - 300) / 500, (k1 - 300) / 500], dtype=torch.float32)
+    return x, k0, a0, k1, a1
+
+
+def test_parameter_count():
+    n = sum(p.numel() for p in NMNet().parameters())
+    assert 0.9e6 < n < 1.2e6  # paper/reference: about 1.1 M
+
+
+def test_permutation_equivariant_and_deterministic():
+    torch.manual_seed(0)
+    model = NMNet().eval()
+    x, k0, a0, k1, a1 = inputs(300)
+    nb = torch.from_numpy(compatibility_neighbors(k0, a0, k1, a1))
+    perm = np.random.default_rng(1).permutation(300)
+    nbp = torch.from_numpy(compatibility_neighbors(k0[perm], a0[perm], k1[perm], a1[perm]))
+    with torch.inference_mode():
+        y = model(x[None], nb[None])[0]
+        y2 = model(x[None], nb[None])[0]
+        yp = model(x[perm][None], nbp[None])[0]
+    assert torch.equal(y, y2)
+    torch.testing.assert_close(yp, y[perm], atol=1e-4, rtol=1e-4)
+
+
+@pytest.mark.parametrize("n", [8, 100, 4000])
+def test_runs_for_many_sizes(n):
+    model = NMNet().eval()
+    x, k0, a0, k1, a1 = inputs(n)
+    nb = torch.from_numpy(compatibility_neighbors(k0, a0, k1, a1))
+    with torch.inference_mode():
+        y = model(x[None], nb[None])
+    assert y.shape == (1, n) and torch.isfinite(y).all()
+
+
+def test_bad_weight_files_name_the_file(tmp_path):
+    missing = tmp_path / "none.pt"
+    with pytest.raises(WeightsError, match="none.pt"):
+        load_model(missing)
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"not a checkpoint")
+    with pytest.raises(WeightsError, match="garbage.pt"):
+        load_model(garbage)
+    small = NMNet({"widths": (16, 16, 32, 32, 64, 64, 128, 128)})
+    wrong = tmp_path / "wrong.pt"
+    torch.save({"state_dict": small.state_dict()}, wrong)  # no config: shapes do not fit the default net
+    with pytest.raises(WeightsError, match="wrong.pt.*do not fit"):
+        load_model(wrong)
