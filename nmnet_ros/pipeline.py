@@ -22,6 +22,7 @@ DEFAULT_CONFIG: dict = {
     "selector": "nmnet",  # any method of nmnet_ros.selectors except 'oracle'
     "weights": None,  # NM-Net weights file; None = shipped
     "score_threshold": 0.5,
+    "k": 8,  # compatibility neighbours per correspondence
     "ratio": None,  # optional ratio test on the putative matches (the paper uses none)
     "mutual": False,
     "min_matches": 8,
@@ -57,7 +58,7 @@ class Frontend:
         self.camera = camera
         self.detector = HessianAffine({"max_keypoints": c["max_keypoints"]})
         weights = {"nmnet": c["weights"]} if c["weights"] else None
-        self.select = build(c["selector"], {"score_threshold": c["score_threshold"]}, weights)
+        self.select = build(c["selector"], {"score_threshold": c["score_threshold"], "k": c["k"]}, weights)
         self.prev: tuple[float, Features, tuple[int, int]] | None = None
 
     def reset(self) -> None:

@@ -154,6 +154,7 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
     if name in ("nmnet", "nmnet-sp", "nmnet+magsac"):
         variant = "nmnet-sp" if name == "nmnet-sp" else "nmnet"
         model = load_model(weights.get(variant), variant)
+        model.config["k"] = cfg.get("k", model.config["k"])
         if name == "nmnet+magsac":
             return lambda c: _robust(c, nmnet_select(model, c, cfg).mask, "magsac", cfg)
         return lambda c: nmnet_select(model, c, cfg)

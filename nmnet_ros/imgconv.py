@@ -1,0 +1,99 @@
+"""sensor_msgs/Image and CompressedImage payloads <-> numpy, without ROS imports.
+
+Works on any object with the message's fields (rclpy messages, rosbags messages), so the node
+and the bag tools share one converter. Bad payloads raise :class:`ImageError` saying what is
+wrong and what the sender should do.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+# encoding -> (channels, dtype, conversion to the pipeline's BGR/mono)
+ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
+    "mono8": (1, np.dtype(np.uint8), None),
+    "8uc1": (1, np.dtype(np.uint8), None),
+    "mono16": (1, np.dtype(np.uint16), None),
+    "16uc1": (1, np.dtype(np.uint16), None),
+    "bgr8": (3, np.dtype(np.uint8), None),
+    "rgb8": (3, np.dtype(np.uint8), cv2.COLOR_RGB2BGR),
+    "bgra8": (4, np.dtype(np.uint8), cv2.COLOR_BGRA2BGR),
+    "rgba8": (4, np.dtype(np.uint8), cv2.COLOR_RGBA2BGR),
+}
+
+
+class ImageError(ValueError):
+    """An image message that cannot be turned into pixels."""
+
+
+def image_to_array(height: int, width: int, encoding: str, step: int, data, is_bigendian: int = 0) -> np.ndarray:
+    """Image message fields -> (H,W) or (H,W,3) array (BGR for colour), zero-copy where possible."""
+    enc = encoding.lower()
+    if enc not in ENCODINGS:
+        raise ImageError(f"unsupported image encoding {encoding!r}; publish one of {', '.join(ENCODINGS)}")
+    if height <= 0 or width <= 0:
+        raise ImageError(f"image is {width}x{height}: nothing to process (check the camera driver)")
+    ch, dtype, conv = ENCODINGS[enc]
+    row = width * ch * dtype.itemsize
+    if step < row:
+        raise ImageError(f"step {step} is smaller than width*channels*bytes = {row} for {encoding}")
+    buf = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.view(np.uint8).ravel()
+    if buf.size < height * step:
+        raise ImageError(f"image data has {buf.size} bytes, expected height*step = {height}*{step} = {height * step}; "
+                         "the message is truncated")
+    rows = buf[: height * step].reshape(height, step)[:, :row]
+    arr = rows.view(dtype.newbyteorder(">" if is_bigendian else "<") if dtype.itemsize > 1 else dtype)
+    arr = arr.reshape(height, width, ch) if ch > 1 else arr.reshape(height, width)
+    if dtype.itemsize > 1 and is_bigendian:
+        arr = arr.astype(dtype)
+    if conv is not None:
+        arr = cv2.cvtColor(np.ascontiguousarray(arr), conv)
+    return arr
+
+
+def decode_compressed(fmt: str, data) -> np.ndarray:
+    """CompressedImage (jpeg/png) -> array as cv2.imdecode gives it (mono or BGR)."""
+    buf = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.view(np.uint8).ravel()
+    if buf.size == 0:
+        raise ImageError("compressed image has no data")
+    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise ImageError(f"cannot decode compressed image (format {fmt!r}, {buf.size} bytes): corrupt or truncated data")
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    return img
+
+
+def array_to_image_fields(img: np.ndarray) -> dict:
+    """Array -> Image message fields (mono8/mono16/bgr8); ``data`` as bytes (fast to assign in rclpy)."""
+    img = np.ascontiguousarray(img)
+    if img.ndim == 2:
+        enc = "mono16" if img.dtype == np.uint16 else "mono8"
+        ch = 1
+    elif img.ndim == 3 and img.shape[2] == 3:
+        enc, ch = "bgr8", 3
+    else:
+        raise ImageError(f"cannot encode array of shape {img.shape} as an image")
+    if enc != "mono16":
+        img = img.astype(np.uint8, copy=False)
+    return {"height": img.shape[0], "width": img.shape[1], "encoding": enc, "is_bigendian": 0,
+            "step": img.shape[1] * ch * img.dtype.itemsize, "data": img.tobytes()}
+
+
+MATCH_FIELDS = ("u0", "v0", "u1", "v1", "score")
+
+
+def matches_to_cloud_fields(k0: np.ndarray, k1: np.ndarray, scores: np.ndarray) -> dict:
+    """One point per match with float32 fields u0 v0 u1 v1 score -> PointCloud2 fields (offsets, data)."""
+    pts = np.concatenate([np.asarray(k0, np.float32).reshape(-1, 2), np.asarray(k1, np.float32).reshape(-1, 2),
+                          np.asarray(scores, np.float32).reshape(-1, 1)], 1)
+    n = len(pts)
+    return {"height": 1, "width": n, "point_step": 20, "row_step": 20 * n, "is_bigendian": False, "is_dense": True,
+            "fields": [(name, 4 * i) for i, name in enumerate(MATCH_FIELDS)], "data": pts.tobytes()}
+
+
+def cloud_to_matches(width: int, point_step: int, data) -> np.ndarray:
+    """PointCloud2 of matches -> (N,5) float32 [u0 v0 u1 v1 score]."""
+    buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data.tobytes(), np.float32)
+    return buf.reshape(width, point_step // 4)[:, :5] if width else np.zeros((0, 5), np.float32)

@@ -1,0 +1,290 @@
+"""The ROS 2 node: consecutive camera frames in, selected matches and relative pose out.
+
+Frames land in a one-slot mailbox (the newest wins; overwritten frames are counted as dropped)
+and a worker thread runs the front end, so the executor never blocks on the heavy work.
+Run: ``nmnet_node --ros-args -r image:=/cam/image_raw -r camera_info:=/cam/camera_info``.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
+
+from .debug_view import draw_matches
+from .geometry import Camera, CameraError
+from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
+from .pipeline import FrameResult, Frontend
+from .posemsg import relative_pose_of_current
+
+PARAMS: dict[str, tuple] = {
+    # name: (default, description, range or choices)
+    "weights": ("", "NM-Net weights file; empty = the weights shipped with the package", None),
+    "max_keypoints": (2000, "Hessian-affine keypoints per frame", (100, 8000)),
+    "k": (8, "compatibility neighbours per correspondence (the shipped network is trained with 8)", (2, 16)),
+    "score_threshold": (0.5, "NM-Net inlier probability above which a match is published", (0.0, 1.0)),
+    "matching": ("nn", "putative matches: nn (paper), mutual, ratio (Lowe 0.8)", ("nn", "mutual", "ratio")),
+    "pose_estimator": ("magsac", "weighted8: eight-point weighted by NM-Net scores; magsac: MAGSAC++ on NM-Net's selection",
+                       ("weighted8", "magsac")),
+    "qos": ("sensor_data", "input QoS: sensor_data (best effort, depth 5) or reliable (depth 10)", ("sensor_data", "reliable")),
+    "use_compressed": (False, "subscribe image/compressed (sensor_msgs/CompressedImage) instead of image", None),
+    "threads": (2, "CPU threads for torch", (1, 64)),
+    "publish_debug_image": (True, "draw matches on ~/debug_image (only built when someone subscribes)", None),
+    "fx": (0.0, "focal length x (px) used until camera_info arrives; 0 = wait for camera_info", (0.0, 1e5)),
+    "fy": (0.0, "focal length y (px), see fx", (0.0, 1e5)),
+    "cx": (0.0, "principal point x (px), see fx", (0.0, 1e5)),
+    "cy": (0.0, "principal point y (px), see fx", (0.0, 1e5)),
+}
+
+SELECTORS = {"weighted8": "nmnet", "magsac": "nmnet+magsac"}
+
+
+@dataclass
+class Stats:
+    """Counters and recent latencies for /diagnostics."""
+
+    received: int = 0
+    processed: int = 0
+    dropped: int = 0
+    published: int = 0
+    warnings: dict[str, int] = field(default_factory=dict)
+    latency_ms: deque = field(default_factory=lambda: deque(maxlen=100))
+    stage_ms: dict[str, deque] = field(default_factory=dict)
+    last_matches: int = 0
+    last_selected: int = 0
+    last_status: str = "waiting"
+    t_start: float = field(default_factory=time.monotonic)
+
+
+class NMNetNode(Node):
+    """rclpy shell around :class:`~nmnet_ros.pipeline.Frontend`."""
+
+    def __init__(self) -> None:
+        super().__init__("nmnet_node")
+        for name, (default, desc, rng) in PARAMS.items():
+            d = ParameterDescriptor(description=desc)
+            if isinstance(rng, tuple) and isinstance(rng[0], float):
+                d.floating_point_range = [FloatingPointRange(from_value=rng[0], to_value=rng[1])]
+            elif isinstance(rng, tuple) and isinstance(rng[0], int) and not isinstance(rng[0], bool):
+                d.integer_range = [IntegerRange(from_value=rng[0], to_value=rng[1], step=1)]
+            elif isinstance(rng, tuple):
+                d.additional_constraints = "one of: " + ", ".join(rng)
+            self.declare_parameter(name, default, d)
+        p = {name: self.get_parameter(name).value for name in PARAMS}
+        for name, (_, _, rng) in PARAMS.items():
+            if isinstance(rng, tuple) and isinstance(rng[0], str) and p[name] not in rng:
+                raise ValueError(f"parameter {name}={p[name]!r} is not one of {rng}")
+        self.params = p
+        import torch
+
+        torch.set_num_threads(p["threads"])
+        self.frontend = Frontend(None, {
+            "max_keypoints": p["max_keypoints"], "selector": SELECTORS[p["pose_estimator"]],
+            "weights": p["weights"] or None, "score_threshold": p["score_threshold"],
+            "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
+        })
+        if p["fx"] > 0 and p["fy"] > 0:
+            self.frontend.camera = Camera(np.array([[p["fx"], 0, p["cx"]], [0, p["fy"], p["cy"]], [0, 0, 1.0]]))
+        self.stats = Stats()
+        self._slot: object | None = None
+        self._cv = threading.Condition()
+        self._running = True
+        self._last_stamp: float | None = None
+        self._size: tuple[int, int] | None = None
+        self._warned: dict[str, float] = {}
+
+        qos = qos_profile_sensor_data if p["qos"] == "sensor_data" else QoSProfile(depth=10)
+        if p["use_compressed"]:
+            self.create_subscription(CompressedImage, "image/compressed", self._on_image, qos)
+        else:
+            self.create_subscription(Image, "image", self._on_image, qos)
+        self.create_subscription(CameraInfo, "camera_info", self._on_info, qos)
+        self.pub_matches = self.create_publisher(PointCloud2, "~/matches", 10)
+        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "~/relative_pose", 10)
+        self.pub_debug = self.create_publisher(Image, "~/debug_image", 2)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self._worker = threading.Thread(target=self._work, name="nmnet-worker", daemon=True)
+        self._worker.start()
+        if self.frontend.camera is None:
+            self.get_logger().info("waiting for camera_info (or set fx/fy/cx/cy parameters) before processing frames")
+
+    # -- input ------------------------------------------------------------------------------
+    def _warn(self, key: str, text: str, period: float = 5.0) -> None:
+        """Throttled warning, counted per kind in diagnostics."""
+        self.stats.warnings[key] = self.stats.warnings.get(key, 0) + 1
+        now = time.monotonic()
+        if now - self._warned.get(key, -1e9) >= period:
+            self._warned[key] = now
+            self.get_logger().warning(f"{text} [{key}: {self.stats.warnings[key]} so far]")
+
+    def _on_info(self, msg: CameraInfo) -> None:
+        try:
+            model = msg.distortion_model or "plumb_bob"
+            if model not in ("plumb_bob", "rational_polynomial"):
+                raise CameraError(f"distortion model {model!r} is not supported (use plumb_bob)")
+            cam = Camera(np.array(msg.k, np.float64).reshape(3, 3), np.array(msg.d, np.float64), msg.width, msg.height)
+        except (CameraError, ValueError) as e:
+            self._warn("bad_camera_info", f"ignoring camera_info: {e}")
+            return
+        if self.frontend.camera is None:
+            self.get_logger().info(f"camera_info received: fx={cam.K[0, 0]:.1f} fy={cam.K[1, 1]:.1f} {msg.width}x{msg.height}")
+        self.frontend.camera = cam
+
+    def _on_image(self, msg) -> None:
+        """Executor callback: O(1), puts the message in the latest-frame slot."""
+        self.stats.received += 1
+        with self._cv:
+            if self._slot is not None:
+                self.stats.dropped += 1
+            self._slot = msg
+            self._cv.notify()
+
+    # -- work -------------------------------------------------------------------------------
+    def _work(self) -> None:
+        while self._running:
+            with self._cv:
+                while self._slot is None and self._running:
+                    self._cv.wait(0.2)
+                msg, self._slot = self._slot, None
+            if msg is None:
+                continue
+            try:
+                self._process(msg)
+            except Exception as e:  # noqa: BLE001 - the node must survive any one frame
+                self._warn("internal_error", f"frame skipped after an unexpected error: {type(e).__name__}: {e}")
+
+    def _decode(self, msg) -> np.ndarray:
+        if isinstance(msg, CompressedImage):
+            return decode_compressed(msg.format, msg.data)
+        return image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data, msg.is_bigendian)
+
+    def _process(self, msg) -> None:
+        t_recv = time.perf_counter()
+        if self.frontend.camera is None:
+            self._warn("no_camera_info", "no camera_info yet and no fx/fy/cx/cy parameters: frame skipped")
+            return
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        if self._last_stamp is not None and stamp <= self._last_stamp:
+            kind = "duplicate_stamp" if stamp == self._last_stamp else "out_of_order_stamp"
+            self._warn(kind, f"frame stamp {stamp:.6f} is not after the previous {self._last_stamp:.6f} ({kind}): skipped")
+            return
+        t = time.perf_counter()
+        try:
+            img = self._decode(msg)
+        except ImageError as e:
+            self._warn("bad_image", f"bad image message skipped: {e}")
+            return
+        decode_ms = 1000 * (time.perf_counter() - t)
+        size = (img.shape[1], img.shape[0])
+        if self._size is not None and size != self._size:
+            self._warn("size_changed", f"frame size changed {self._size[0]}x{self._size[1]} -> {size[0]}x{size[1]}: "
+                                       "restarting from this frame")
+        self._size = size
+        self._last_stamp = stamp
+        result = self.frontend.process(img, stamp)
+        result.timings_ms = {"decode": decode_ms, **result.timings_ms}
+        self.stats.processed += 1
+        self._publish(msg.header, img, result)
+        self.stats.latency_ms.append(1000 * (time.perf_counter() - t_recv))
+        for k, v in result.timings_ms.items():
+            self.stats.stage_ms.setdefault(k, deque(maxlen=100)).append(v)
+
+    # -- output -----------------------------------------------------------------------------
+    def _publish(self, header, img: np.ndarray, r: FrameResult) -> None:
+        s = self.stats
+        s.last_status, s.last_matches, s.last_selected = r.status, len(r.k0), r.num_selected
+        if r.status in ("first_frame", "size_changed"):
+            return
+        if r.status == "too_few_matches":
+            self._warn("too_few_matches", f"only {r.num_selected} matches selected of {len(r.k0)} (need 8): no pose")
+        elif r.status == "no_motion":
+            self._warn("no_motion", "camera is not moving (median flow below static_flow_px): publishing identity pose",
+                       period=30.0)
+        elif r.status == "pose_failed":
+            self._warn("pose_failed", "pose estimation failed on the selected matches")
+        sel = r.mask
+        cloud = PointCloud2(header=header)
+        f = matches_to_cloud_fields(r.k0[sel], r.k1[sel], r.scores[sel])
+        cloud.height, cloud.width, cloud.point_step, cloud.row_step = f["height"], f["width"], f["point_step"], f["row_step"]
+        cloud.is_bigendian, cloud.is_dense = f["is_bigendian"], f["is_dense"]
+        cloud.fields = [PointField(name=n, offset=o, datatype=PointField.FLOAT32, count=1) for n, o in f["fields"]]
+        cloud.data = f["data"]
+        self.pub_matches.publish(cloud)
+        if r.status in ("ok", "no_motion"):
+            pose_msg = PoseWithCovarianceStamped(header=header)
+            q, t, cov = relative_pose_of_current(r.pose, r.num_selected, static=r.status == "no_motion")
+            pose_msg.pose.pose.position.x, pose_msg.pose.pose.position.y, pose_msg.pose.pose.position.z = (float(v) for v in t)
+            o = pose_msg.pose.pose.orientation
+            o.x, o.y, o.z, o.w = (float(v) for v in q)
+            pose_msg.pose.covariance = [float(v) for v in cov.ravel()]
+            self.pub_pose.publish(pose_msg)
+            s.published += 1
+        if self.params["publish_debug_image"] and self.pub_debug.get_subscription_count() > 0:
+            dbg = Image(header=header)
+            for k, v in array_to_image_fields(draw_matches(img, r.k0, r.k1, r.mask)).items():
+                setattr(dbg, k, v)
+            self.pub_debug.publish(dbg)
+
+    def _publish_diagnostics(self) -> None:
+        s = self.stats
+        elapsed = max(time.monotonic() - s.t_start, 1e-9)
+        lat = np.array(s.latency_ms) if s.latency_ms else np.zeros(1)
+        values = {
+            "frames_received": s.received, "frames_processed": s.processed, "frames_dropped": s.dropped,
+            "poses_published": s.published, "rate_hz": round(s.processed / elapsed, 3),
+            "latency_p50_ms": round(float(np.percentile(lat, 50)), 1), "latency_p90_ms": round(float(np.percentile(lat, 90)), 1),
+            "matches": s.last_matches, "selected": s.last_selected, "last_status": s.last_status,
+            **{f"stage_{k}_ms": round(float(np.median(v)), 1) for k, v in s.stage_ms.items()},
+            **{f"warn_{k}": v for k, v in s.warnings.items()},
+        }
+        st = DiagnosticStatus(name="nmnet_node: front end", hardware_id=self.get_fully_qualified_name())
+        st.level = DiagnosticStatus.OK if not s.warnings else DiagnosticStatus.WARN
+        st.message = s.last_status if not s.warnings else "warnings: " + ", ".join(sorted(s.warnings))
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        arr = DiagnosticArray(status=[st])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(arr)
+
+    def stop(self) -> None:
+        """Stop the worker thread."""
+        self._running = False
+        with self._cv:
+            self._cv.notify()
+        self._worker.join(timeout=5.0)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``nmnet_node`` / ``python -m nmnet_ros.node``."""
+    rclpy.init(args=sys.argv if args is None else args)
+    node = None
+    try:
+        node = NMNetNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as e:
+        print(f"nmnet_node: error: {e}", file=sys.stderr)
+        return 2
+    finally:
+        if node is not None:
+            node.stop()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

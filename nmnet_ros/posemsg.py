@@ -1,0 +1,51 @@
+"""Relative pose in the form the ROS outputs carry (no ROS imports).
+
+The front end estimates x_cur = R x_prev + t. Published is the pose of the current camera in
+the previous camera's optical frame: T_prev_cur = inv([R | t]), translation a unit direction
+(monocular: the scale is unknown) and a diagonal covariance that shrinks with the number of
+selected matches.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import PoseEstimate
+
+ROT_SIGMA_RAD = np.radians(0.5)  # per-axis rotation sigma at REF_MATCHES selected matches
+DIR_SIGMA = 0.05  # per-axis sigma of the unit translation direction at REF_MATCHES
+REF_MATCHES = 200
+
+
+def rot_to_quat(R: np.ndarray) -> np.ndarray:
+    """3x3 rotation -> quaternion (x, y, z, w), w >= 0."""
+    R = np.asarray(R, np.float64)
+    w = np.sqrt(max(0.0, 1.0 + np.trace(R))) / 2.0
+    x = np.sqrt(max(0.0, 1.0 + R[0, 0] - R[1, 1] - R[2, 2])) / 2.0
+    y = np.sqrt(max(0.0, 1.0 - R[0, 0] + R[1, 1] - R[2, 2])) / 2.0
+    z = np.sqrt(max(0.0, 1.0 - R[0, 0] - R[1, 1] + R[2, 2])) / 2.0
+    x = np.copysign(x, R[2, 1] - R[1, 2])
+    y = np.copysign(y, R[0, 2] - R[2, 0])
+    z = np.copysign(z, R[1, 0] - R[0, 1])
+    q = np.array([x, y, z, w])
+    return q / np.linalg.norm(q)
+
+
+def relative_pose_of_current(pose: PoseEstimate | None, num_matches: int, static: bool = False
+                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(quaternion xyzw, translation direction, 6x6 covariance [x y z roll pitch yaw]) of T_prev_cur.
+
+    A static camera gives the identity with zero translation and the rotation covariance.
+    """
+    scale = REF_MATCHES / max(num_matches, 1)
+    cov = np.zeros((6, 6))
+    if static or pose is None:
+        cov[:3, :3] = np.eye(3) * 1e-6
+        cov[3:, 3:] = np.eye(3) * ROT_SIGMA_RAD**2 * scale
+        return np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), cov
+    R_pc = pose.R.T
+    t_pc = -pose.R.T @ pose.t
+    t_pc = t_pc / max(np.linalg.norm(t_pc), 1e-12)
+    cov[:3, :3] = np.eye(3) * DIR_SIGMA**2 * scale
+    cov[3:, 3:] = np.eye(3) * ROT_SIGMA_RAD**2 * scale
+    return rot_to_quat(R_pc), t_pc, cov
