@@ -7,6 +7,7 @@ Run: ``nmnet_node --ros-args -r image:=/cam/image_raw -r camera_info:=/cam/camer
 
 from __future__ import annotations
 
+import re
 import sys
 import threading
 import time
@@ -63,6 +64,7 @@ class Stats:
     latency_ms: deque = field(default_factory=lambda: deque(maxlen=100))
     stage_ms: dict[str, deque] = field(default_factory=dict)
     last_matches: int = 0
+    last_keypoints: int = 0
     last_selected: int = 0
     last_status: str = "waiting"
     t_start: float = field(default_factory=time.monotonic)
@@ -123,11 +125,12 @@ class NMNetNode(Node):
 
     # -- input ------------------------------------------------------------------------------
     def _warn(self, key: str, text: str, period: float = 5.0) -> None:
-        """Throttled warning, counted per kind in diagnostics."""
+        """Warning counted per kind in diagnostics; the same message (numbers aside) at most once per period."""
         self.stats.warnings[key] = self.stats.warnings.get(key, 0) + 1
         now = time.monotonic()
-        if now - self._warned.get(key, -1e9) >= period:
-            self._warned[key] = now
+        throttle = key + re.sub(r"[\d.]+", "#", text)
+        if now - self._warned.get(throttle, -1e9) >= period:
+            self._warned[throttle] = now
             self.get_logger().warning(f"{text} [{key}: {self.stats.warnings[key]} so far]")
 
     def _on_info(self, msg: CameraInfo) -> None:
@@ -205,7 +208,7 @@ class NMNetNode(Node):
     # -- output -----------------------------------------------------------------------------
     def _publish(self, header, img: np.ndarray, r: FrameResult) -> None:
         s = self.stats
-        s.last_status, s.last_matches, s.last_selected = r.status, len(r.k0), r.num_selected
+        s.last_status, s.last_matches, s.last_selected, s.last_keypoints = r.status, len(r.k0), r.num_selected, r.num_keypoints
         if r.status in ("first_frame", "size_changed"):
             return
         if r.status == "too_few_matches":
@@ -246,7 +249,7 @@ class NMNetNode(Node):
             "frames_received": s.received, "frames_processed": s.processed, "frames_dropped": s.dropped,
             "poses_published": s.published, "rate_hz": round(s.processed / elapsed, 3),
             "latency_p50_ms": round(float(np.percentile(lat, 50)), 1), "latency_p90_ms": round(float(np.percentile(lat, 90)), 1),
-            "matches": s.last_matches, "selected": s.last_selected, "last_status": s.last_status,
+            "keypoints": s.last_keypoints, "matches": s.last_matches, "selected": s.last_selected, "last_status": s.last_status,
             **{f"stage_{k}_ms": round(float(np.median(v)), 1) for k, v in s.stage_ms.items()},
             **{f"warn_{k}": v for k, v in s.warnings.items()},
         }

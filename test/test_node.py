@@ -27,16 +27,17 @@ class Peer:
     """The test's own rclpy node: publishes camera data, records the node's outputs."""
 
     def __init__(self, ns: str = "/nmnet_node", image_topic: str = "image", compressed: bool = False,
-                 info_topic: str = "camera_info") -> None:
+                 info_topic: str = "camera_info", reliable: bool = False) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseWithCovarianceStamped
-        from rclpy.qos import qos_profile_sensor_data
+        from rclpy.qos import QoSProfile, qos_profile_sensor_data
         from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
         self.node = rclpy.create_node(f"test_peer_{unique_domain()}")
         mtype = CompressedImage if compressed else Image
-        self.pub_img = self.node.create_publisher(mtype, image_topic + ("/compressed" if compressed else ""), qos_profile_sensor_data)
-        self.pub_info = self.node.create_publisher(CameraInfo, info_topic, qos_profile_sensor_data)
+        qos = QoSProfile(depth=10) if reliable else qos_profile_sensor_data
+        self.pub_img = self.node.create_publisher(mtype, image_topic + ("/compressed" if compressed else ""), qos)
+        self.pub_info = self.node.create_publisher(CameraInfo, info_topic, qos)
         self.poses: list = []
         self.matches: list = []
         self.diag: list = []
@@ -145,3 +146,183 @@ def test_kitti_compressed_images(ros, tmp_path):
         peer.close()
         assert node.stop(signal.SIGINT) == 0, node.output()
     assert "Traceback" not in node.output()
+
+
+def wait_diag(peer: Peer, key: str, at_least: int, timeout: float = 30.0) -> bool:
+    return spin_until(peer.node, lambda: int(peer.diag_values().get(key, 0)) >= at_least, timeout)
+
+
+def test_bad_input_is_survived_and_counted(ros, tmp_path):
+    seq = Sequence.load(data_dir("kitti-07"))
+    node = NodeProcess([], ros, tmp_path / "node.log")
+    peer = Peer()
+    img0, img1, img2 = seq.image(60), seq.image(61), seq.image(62)
+    info = kitti_info(seq)
+    try:
+        peer.wait_connected()
+        bad_k = kitti_info(seq)
+        bad_k.k = [0.0] * 9
+        peer.pub_info.publish(bad_k)
+        assert wait_diag(peer, "warn_bad_camera_info", 1)
+        peer.pub_img.publish(image_msg(img0, 1.0))  # no valid intrinsics yet: waits, says so
+        assert wait_diag(peer, "warn_no_camera_info", 1)
+        nan_k = kitti_info(seq)
+        nan_k.k = [float("nan")] * 9
+        peer.pub_info.publish(nan_k)
+        assert wait_diag(peer, "warn_bad_camera_info", 2)
+        peer.pub_info.publish(info)
+        spin_until(peer.node, lambda: False, 0.5)
+
+        bad = [image_msg(img0, 2.0, encoding="yuv422_weird")]  # wrong encoding string
+        short = image_msg(img0, 2.1)
+        short.data = bytes(short.data[: len(short.data) // 2])  # shorter than height*step
+        empty = image_msg(np.zeros((0, 0), np.uint8), 2.2)  # 0x0
+        for n, msg in enumerate([*bad, short, empty], start=1):
+            peer.pub_img.publish(msg)
+            assert wait_diag(peer, "warn_bad_image", n), f"bad image {n} not reported"
+
+        peer.pub_img.publish(image_msg(img0, 10.0))
+        assert peer.wait_processed(1)
+        peer.pub_img.publish(image_msg(img1, 10.0))  # duplicate stamp
+        assert wait_diag(peer, "warn_duplicate_stamp", 1)
+        peer.pub_img.publish(image_msg(img1, 9.0))  # out of order
+        assert wait_diag(peer, "warn_out_of_order_stamp", 1)
+        peer.pub_img.publish(image_msg(img1, 11.0))
+        assert peer.wait_result_for(11.0)
+        n_poses = len(peer.poses)
+
+        peer.pub_img.publish(image_msg(img1, 12.0))  # static camera: same view again
+        assert wait_diag(peer, "warn_no_motion", 1)
+        spin_until(peer.node, lambda: len(peer.poses) > n_poses, 5.0)
+        o, p = peer.poses[-1][1].pose.pose.orientation, peer.poses[-1][1].pose.pose.position
+        assert (o.w, p.x, p.y, p.z) == (1.0, 0.0, 0.0, 0.0)  # identity, not a garbage pose
+
+        peer.pub_img.publish(image_msg(np.full_like(img1, 90), 13.0))  # textureless: < 8 matches
+        assert wait_diag(peer, "warn_too_few_matches", 1)
+        small = np.ascontiguousarray(img1[:, :600])
+        peer.pub_img.publish(image_msg(small, 14.0))  # frame size changes
+        assert wait_diag(peer, "warn_size_changed", 1)
+
+        peer.pub_img.publish(image_msg(img1, 15.0))  # back to the camera's size, then good frames
+        assert wait_diag(peer, "warn_size_changed", 2)
+        peer.pub_img.publish(image_msg(img2, 16.0))
+        assert peer.wait_result_for(16.0), "node did not recover after bad input"
+        assert node.alive()
+    finally:
+        peer.close()
+        assert node.stop(signal.SIGTERM) == 0
+    out = node.output()
+    assert "Traceback" not in out
+    for needle in ("unsupported image encoding", "truncated", "0x0", "focal lengths", "NaN", "duplicate_stamp",
+                   "out_of_order_stamp", "not moving", "frame size changed"):
+        assert needle in out, f"no clear warning containing {needle!r}:\n{out}"
+
+
+def test_corrupt_jpeg_is_skipped(ros, tmp_path):
+    seq = Sequence.load(data_dir("kitti-07"))
+    node = NodeProcess(["--ros-args", "-p", "use_compressed:=true"], ros, tmp_path / "node.log")
+    peer = Peer(compressed=True)
+    try:
+        peer.wait_connected()
+        peer.pub_info.publish(kitti_info(seq))
+        good = compressed_msg(seq.image(70), 1.0)
+        peer.pub_img.publish(compressed_msg(None, 0.5, data=bytes(good.data[:200]) + b"\x00" * 50))
+        assert wait_diag(peer, "warn_bad_image", 1)
+        peer.pub_img.publish(good)
+        assert peer.wait_processed(1)
+        peer.pub_img.publish(compressed_msg(seq.image(71), 2.0))
+        assert peer.wait_result_for(2.0)
+    finally:
+        peer.close()
+        node.stop()
+    assert "cannot decode compressed image" in node.output()
+
+
+def get_params(peer: Peer, names: list[str]) -> dict:
+    from rclpy.parameter import parameter_value_to_python
+    from rclpy.parameter_client import AsyncParameterClient
+
+    client = AsyncParameterClient(peer.node, "/nmnet_node")
+    assert client.wait_for_services(10.0)
+    fut = client.get_parameters(names)
+    rclpy.spin_until_future_complete(peer.node, fut, timeout_sec=10.0)
+    return {n: parameter_value_to_python(v) for n, v in zip(names, fut.result().values, strict=True)}
+
+
+def test_parameters_from_yaml_and_command_line(ros, tmp_path):
+    seq = Sequence.load(data_dir("kitti-07"))
+    yaml_file = tmp_path / "p.yaml"
+    yaml_file.write_text("/**:\n  ros__parameters:\n    max_keypoints: 500\n    score_threshold: 0.7\n    qos: reliable\n")
+    node = NodeProcess(["--ros-args", "--params-file", str(yaml_file), "-p", "max_keypoints:=300"], ros, tmp_path / "node.log")
+    peer = Peer(reliable=True)
+    try:
+        peer.wait_connected()
+        got = get_params(peer, ["max_keypoints", "score_threshold", "qos", "k"])
+        assert got == {"max_keypoints": 300, "score_threshold": 0.7, "qos": "reliable", "k": 8}
+        peer.pub_info.publish(kitti_info(seq))
+        peer.pub_img.publish(image_msg(seq.image(0), 1.0))
+        assert peer.wait_processed(1)
+        assert 0 < int(peer.diag_values()["keypoints"]) <= 300  # the -p value reached the detector
+    finally:
+        peer.close()
+        node.stop()
+
+
+def test_invalid_parameter_is_a_clear_error(ros, tmp_path):
+    node = NodeProcess(["--ros-args", "-p", "matching:=fancy"], ros, tmp_path / "node.log")
+    assert node.proc.wait(60) == 2
+    node.stop()
+    assert "matching" in node.output() and "fancy" in node.output()
+
+
+def rss_mb(pid: int) -> float:
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return 0.0
+
+
+def test_flood_keeps_latency_bounded(ros, tmp_path):
+    """60 Hz for 5 s into a node that manages ~1 Hz: old frames are dropped, not queued."""
+    seq = Sequence.load(data_dir("kitti-07"))
+    imgs = [seq.image(i) for i in range(80, 100)]
+    node = NodeProcess([], ros, tmp_path / "node.log")
+    peer = Peer()
+    sent: dict[float, float] = {}
+    try:
+        peer.wait_connected()
+        info = kitti_info(seq)
+        peer.pub_info.publish(info)
+        peer.pub_img.publish(image_msg(imgs[0], 0.5))
+        assert peer.wait_processed(1)
+        peer.pub_img.publish(image_msg(imgs[1], 1.0))  # warm: a full pair has run once
+        assert peer.wait_result_for(1.0)
+        peer.matches.clear()
+        rss0 = rss_mb(node.proc.pid)
+        t0 = time.monotonic()
+        n = 0
+        rss = []
+        while time.monotonic() - t0 < 5.0:
+            if n % 15 == 0:
+                rss.append(rss_mb(node.proc.pid))
+            stamp = 2.0 + n / 60.0
+            peer.pub_img.publish(image_msg(imgs[1 + n % 19], stamp))
+            sent[round(stamp, 6)] = time.monotonic()
+            n += 1
+            spin_until(peer.node, lambda: False, max(0.0, t0 + n / 60.0 - time.monotonic()))
+        spin_until(peer.node, lambda: False, 8.0)  # let the last frame finish
+        rss1 = rss_mb(node.proc.pid)
+        assert wait_diag(peer, "frames_dropped", 1)
+        vals = peer.diag_values()
+    finally:
+        peer.close()
+        node.stop()
+    lat = [t - sent[round(s, 6)] for (t, _), s in zip(peer.matches, peer.stamps(peer.matches), strict=True) if round(s, 6) in sent]
+    received, dropped = int(vals["frames_received"]), int(vals["frames_dropped"])
+    print(f"sent {n}, received {received} (best effort), results {len(lat)}, dropped {dropped}, latency s: {np.round(lat, 2)}, "
+          f"RSS {rss0:.0f} -> {np.round(rss)} -> {rss1:.0f} MB")
+    assert n >= 250 and len(lat) >= 2
+    assert dropped >= received - 1 - len(lat) - 1 > 0  # every received frame not processed is counted
+    assert max(lat) < 3 * np.median(lat) + 1.0  # bounded: no queue building up
+    assert lat[-1] < 3 * lat[0] + 1.0
+    assert rss1 - rss[len(rss) // 2] < 30  # flat memory: after the first few frames nothing accumulates
