@@ -52,6 +52,7 @@ class NMNet(nn.Module):
     def __init__(self, config: dict | None = None) -> None:
         super().__init__()
         self.config = {**DEFAULT_CONFIG, **(config or {})}
+        self.score_threshold = 0.5  # probability cut; load_model sets the calibrated one
         w = list(self.config["widths"])
         self.embed = nn.Sequential(nn.Conv2d(1, w[0], (1, 4)), _norm_act(w[0]))
         self.blocks = nn.Sequential(*[ResBlock(a, b) for a, b in zip([w[0]] + w[:-1], w, strict=True)])
@@ -96,4 +97,5 @@ def load_model(path: str | Path | None = None, variant: str = "nmnet") -> NMNet:
         model.load_state_dict(ckpt["state_dict"])
     except RuntimeError as e:
         raise WeightsError(f"{path}: weights do not fit NM-Net: {str(e).splitlines()[0]}") from e
+    model.score_threshold = float(ckpt.get("score_threshold", 0.5))  # calibrated on validation by nmnet train
     return model.eval()

@@ -35,7 +35,8 @@ PARAMS: dict[str, tuple] = {
     "weights": ("", "NM-Net weights file; empty = the weights shipped with the package", None),
     "max_keypoints": (2000, "Hessian-affine keypoints per frame", (100, 8000)),
     "k": (8, "compatibility neighbours per correspondence (the shipped network is trained with 8)", (2, 16)),
-    "score_threshold": (0.5, "NM-Net inlier probability above which a match is published", (0.0, 1.0)),
+    "score_threshold": (-1.0, "NM-Net inlier probability above which a match is published; -1 = the threshold "
+                              "calibrated on validation and stored with the weights", (-1.0, 1.0)),
     "matching": ("nn", "putative matches: nn (paper), mutual, ratio (Lowe 0.8)", ("nn", "mutual", "ratio")),
     "pose_estimator": ("magsac", "weighted8: eight-point weighted by NM-Net scores; magsac: MAGSAC++ on NM-Net's selection",
                        ("weighted8", "magsac")),
@@ -94,7 +95,7 @@ class NMNetNode(Node):
         torch.set_num_threads(p["threads"])
         self.frontend = Frontend(None, {
             "max_keypoints": p["max_keypoints"], "selector": SELECTORS[p["pose_estimator"]],
-            "weights": p["weights"] or None, "score_threshold": p["score_threshold"],
+            "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
             "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
         })
         if p["fx"] > 0 and p["fy"] > 0:

@@ -21,7 +21,7 @@ DEFAULT_CONFIG: dict = {
     "max_keypoints": FEATURE_DEFAULTS["max_keypoints"],
     "selector": "nmnet",  # any method of nmnet_ros.selectors except 'oracle'
     "weights": None,  # NM-Net weights file; None = shipped
-    "score_threshold": 0.5,
+    "score_threshold": None,  # None: the threshold calibrated with the weights
     "k": 8,  # compatibility neighbours per correspondence
     "ratio": None,  # optional ratio test on the putative matches (the paper uses none)
     "mutual": False,

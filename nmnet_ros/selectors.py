@@ -23,7 +23,7 @@ from .neighbors import mine_neighbors
 DEFAULT_CONFIG: dict = {
     "threshold_px": 1.0,  # robust-estimator inlier threshold, pixels
     "ratio": 0.8,
-    "score_threshold": 0.5,  # NM-Net probability above which a match is selected
+    "score_threshold": None,  # NM-Net probability above which a match is selected; None = calibrated with the weights
 }
 
 
@@ -89,7 +89,8 @@ def nmnet_select(model: NMNet, c: Correspondences, cfg: dict) -> Selection:
     """Scores = sigmoid(logits); pose by the eight-point weighted with relu(tanh(logit))."""
     logits = nmnet_logits(model, c)
     scores = 1.0 / (1.0 + np.exp(-logits))
-    mask = scores > cfg["score_threshold"]
+    threshold = cfg["score_threshold"] if cfg["score_threshold"] is not None else model.score_threshold
+    mask = scores > threshold
     w = np.maximum(np.tanh(logits), 0.0)
     E = weighted_eight_point(c.x0, c.x1, w) if len(c) else None
     pose = recover_pose(E, c.x0, c.x1, mask) if E is not None else None

@@ -76,16 +76,41 @@ def balanced_bce(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
     return torch.nn.functional.binary_cross_entropy_with_logits(logits, labels, weight=w)
 
 
+THRESHOLDS = tuple(float(t) for t in np.round(np.arange(0.05, 1.0, 0.05), 2))
+
+
 @torch.inference_mode()
-def validate(model: NMNet, pairs: list[PairData], neighbor_kind: str) -> dict:
-    """Precision/recall/F (percent) of logit > 0 against the labels, summed over pairs."""
+def validate(model: NMNet, pairs: list[PairData], neighbor_kind: str, threshold: float = 0.5) -> dict:
+    """Mean per-pair precision/recall/F (percent) of probability > threshold against the labels.
+
+    Also the F at every threshold of THRESHOLDS (``f1_by_threshold``), to calibrate the
+    operating point: the balanced loss centres the scores for recall, not for F.
+    """
     model.eval()
-    stats = []
+    probs = []
     for p in pairs:
         x, nb = network_input(p, neighbor_kind, model.config["k"])
-        pred = (model(x, nb)[0] > 0).numpy()
-        stats.append(prf(pred, p.labels))
-    return {k: float(np.mean([s[k] for s in stats])) for k in ("precision", "recall", "f1")}
+        probs.append(torch.sigmoid(model(x, nb)[0]).numpy())
+    stats = [prf(pr > threshold, p.labels) for pr, p in zip(probs, pairs, strict=True)]
+    out = {k: float(np.mean([s[k] for s in stats])) for k in ("precision", "recall", "f1")}
+    out["f1_by_threshold"] = {t: float(np.mean([prf(pr > t, p.labels)["f1"] for pr, p in zip(probs, pairs, strict=True)]))
+                              for t in THRESHOLDS}
+    return out
+
+
+def calibrate(out_dir: Path, val_pairs: list[PairData], kind: str, log=print) -> dict:
+    """Store in best.pt the score threshold that maximises validation F; returns its metrics."""
+    ck = torch.load(out_dir / "best.pt", map_location="cpu", weights_only=False)
+    model = NMNet(ck["config"])
+    model.load_state_dict(ck["state_dict"])
+    f_by_t = validate(model, val_pairs, kind)["f1_by_threshold"]
+    best_t = max(f_by_t, key=f_by_t.get)
+    val = validate(model, val_pairs, kind, best_t)
+    val.pop("f1_by_threshold")
+    ck.update(score_threshold=float(best_t), val_calibrated=val)
+    torch.save(ck, out_dir / "best.pt")
+    log(f"calibrated score threshold {best_t:.2f}: val P {val['precision']:.1f} R {val['recall']:.1f} F {val['f1']:.1f}")
+    return {"score_threshold": float(best_t), **{f"val_{k}": v for k, v in val.items()}}
 
 
 def _git_commit() -> str:
@@ -152,6 +177,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
             opt.step()
             losses.append(loss.item())
         val = validate(model, val_pairs, kind)
+        val.pop("f1_by_threshold")
         rec = {"epoch": epoch, "loss": float(np.mean(losses)), **{f"val_{k}": v for k, v in val.items()},
                "epoch_sec": time.time() - t0}
         history.append(rec)
@@ -166,8 +192,8 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
                     "best_f": best_f, "history": history, "rng": rng.bit_generator.state,
                     "torch_rng": torch.get_rng_state()}, out_dir / "last.pt")
         (out_dir / "history.json").write_text(json.dumps(history, indent=1))
-    summary = {"best_val_f1": best_f, "train_pairs": len(train_pairs), "val_pairs": len(val_pairs),
-               "train_minutes": (time.time() - t_start) / 60}
+    summary = {"best_val_f1_at_0.5": best_f, "train_pairs": len(train_pairs), "val_pairs": len(val_pairs),
+               "train_minutes": (time.time() - t_start) / 60, "epochs": c["epochs"], **calibrate(out_dir, val_pairs, kind, log)}
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
 

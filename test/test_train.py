@@ -28,4 +28,5 @@ def test_train_few_steps_then_resume(tmp_path):
     assert not model.training
     s2 = train(spec_train, spec_val, tmp_path, {**cfg, "epochs": 2}, resume=True, cache_dir=tmp_path / "cache")
     hist = json.loads((tmp_path / "history.json").read_text())
-    assert [h["epoch"] for h in hist] == [0, 1] and s2["best_val_f1"] >= s["best_val_f1"]
+    assert [h["epoch"] for h in hist] == [0, 1] and s2["best_val_f1_at_0.5"] >= s["best_val_f1_at_0.5"]
+    assert 0 < s2["score_threshold"] < 1 and s2["val_f1"] >= s2["best_val_f1_at_0.5"] - 1e-9
