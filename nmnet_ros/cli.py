@@ -13,6 +13,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("nmnet_ros.evaluate", "compare correspondence selectors on sequence folders"),
     "neighbors": ("nmnet_ros.neighbor_study", "inlier ratio of compatibility vs spatial neighbours (paper Fig. 3)"),
     "bench": ("nmnet_ros.bench", "time the pipeline stages on this machine"),
+    "make-bag": ("nmnet_ros.make_bag", "convert a sequence folder into a ROS 1 .bag, ROS 2 .db3 or .mcap"),
+    "replay": ("nmnet_ros.replay", "run the front end over a bag, record outputs, evaluate against ground truth"),
 }
 
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 
-def draw_matches(img: np.ndarray, k0: np.ndarray, k1: np.ndarray, mask: np.ndarray, max_rejected: int = 300) -> np.ndarray:
+def draw_matches(img: np.ndarray, k0: np.ndarray, k1: np.ndarray, mask: np.ndarray, max_rejected: int = 150) -> np.ndarray:
     """Flow lines from the previous keypoint to the current one on the current image (BGR uint8)."""
     out = img if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
     if out.dtype != np.uint8:
@@ -22,5 +22,6 @@ def draw_matches(img: np.ndarray, k0: np.ndarray, k1: np.ndarray, mask: np.ndarr
             p1 = (int(round(k1[i, 0])), int(round(k1[i, 1])))
             cv2.line(out, p0, p1, colour, 1, cv2.LINE_AA)
             cv2.circle(out, p1, 2, colour, -1, cv2.LINE_AA)
-    cv2.putText(out, f"selected {int(mask.sum())} / {len(mask)}", (10, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2)
+    cv2.rectangle(out, (0, 0), (330, 34), (0, 0, 0), -1)
+    cv2.putText(out, f"selected {int(mask.sum())} / {len(mask)}", (8, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2)
     return out

@@ -127,3 +127,43 @@ class HessianAffine:
             descriptors=desc[0].numpy().astype(np.float32),
             responses=resp[0].numpy().astype(np.float32),
         )
+
+
+class SiftSimilarity:
+    """OpenCV SIFT keypoints with similarity frames A = size * R(angle) and RootSIFT descriptors.
+
+    The classic baseline's features, and a cheaper frame source for the compatibility score
+    (exact only for zoom + rotation; see DESIGN.md).
+    """
+
+    min_size = 16
+
+    def __init__(self, config: dict | None = None) -> None:
+        import cv2
+
+        self.config = {**DEFAULT_CONFIG, **(config or {})}
+        self._sift = cv2.SIFT_create(self.config["max_keypoints"])
+
+    @property
+    def cache_key(self) -> str:
+        return f"sift-k{self.config['max_keypoints']}"
+
+    def __call__(self, image: np.ndarray) -> Features:
+        """Detect and describe; blank or tiny images give empty features."""
+        gray = to_gray_float(image)
+        if min(gray.shape) < self.min_size or float(gray.max() - gray.min()) < 1e-3:
+            return Features.empty()
+        kps, desc = self._sift.detectAndCompute((gray * 255).astype(np.uint8), None)
+        if not kps:
+            return Features.empty()
+        kps, desc = kps[: self.config["max_keypoints"]], desc[: self.config["max_keypoints"]]
+        ang = np.radians([k.angle for k in kps])
+        size = np.array([k.size for k in kps])
+        c, s = np.cos(ang), np.sin(ang)
+        frames = size[:, None, None] * np.stack([np.stack([c, -s], 1), np.stack([s, c], 1)], 1)
+        d = np.sqrt(desc / np.maximum(desc.sum(1, keepdims=True), 1e-12))  # RootSIFT: L1, then sqrt (unit L2)
+        return Features(np.array([k.pt for k in kps], np.float32), frames.astype(np.float32), d.astype(np.float32),
+                        np.array([k.response for k in kps], np.float32))
+
+
+DETECTORS = {"hessian-affine": HessianAffine, "sift": SiftSimilarity}

@@ -12,14 +12,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
-from .features import Features, HessianAffine
+from .features import DETECTORS, Features
 from .geometry import Camera, PoseEstimate
 from .matching import match_descriptors
 from .selectors import Correspondences, build
 
 DEFAULT_CONFIG: dict = {
+    "detector": "hessian-affine",  # or "sift" (similarity frames; the classic baseline's features)
     "max_keypoints": FEATURE_DEFAULTS["max_keypoints"],
-    "selector": "nmnet",  # any method of nmnet_ros.selectors except 'oracle'
+    "selector": "nmnet+magsac",  # any method of nmnet_ros.selectors except 'oracle'
     "weights": None,  # NM-Net weights file; None = shipped
     "score_threshold": None,  # None: the threshold calibrated with the weights
     "k": 8,  # compatibility neighbours per correspondence
@@ -56,7 +57,9 @@ class Frontend:
         self.config = {**DEFAULT_CONFIG, **(config or {})}
         c = self.config
         self.camera = camera
-        self.detector = HessianAffine({"max_keypoints": c["max_keypoints"]})
+        if c["detector"] not in DETECTORS:
+            raise ValueError(f"unknown detector {c['detector']!r}; use one of {', '.join(DETECTORS)}")
+        self.detector = DETECTORS[c["detector"]]({"max_keypoints": c["max_keypoints"]})
         weights = {"nmnet": c["weights"]} if c["weights"] else None
         self.select = build(c["selector"], {"score_threshold": c["score_threshold"], "k": c["k"]}, weights)
         self.prev: tuple[float, Features, tuple[int, int]] | None = None

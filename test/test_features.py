@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from nmnet_ros.features import Features
+from nmnet_ros.features import Features, SiftSimilarity
 from nmnet_ros.matching import match_descriptors
 
 from .conftest import data_dir
@@ -59,25 +59,16 @@ def frame_errors(f1: Features, f2: Features, H: np.ndarray):
     return int(correct.sum()), float(np.median(err))
 
 
-def sift_similarity_features(img: np.ndarray) -> Features:
-    sift = cv2.SIFT_create(2000)
-    kps, desc = sift.detectAndCompute(img, None)
-    ang = np.radians([k.angle for k in kps])
-    s = np.array([k.size for k in kps])
-    A = s[:, None, None] * np.stack([np.stack([np.cos(ang), -np.sin(ang)], 1), np.stack([np.sin(ang), np.cos(ang)], 1)], 1)
-    d = desc / np.linalg.norm(desc, axis=1, keepdims=True)
-    return Features(np.array([k.pt for k in kps], np.float32), A.astype(np.float32), d.astype(np.float32), np.zeros(len(kps), np.float32))
-
-
 def test_affine_frames_follow_the_homography_on_boat(detector):
     root = data_dir("oxford-boat")
     img1 = cv2.imread(str(root / "images" / "img1.pgm"), cv2.IMREAD_GRAYSCALE)
-    f1, s1 = detector(img1), sift_similarity_features(img1)
+    sift = SiftSimilarity()
+    f1, s1 = detector(img1), sift(img1)
     for n, min_correct in ((2, 600), (3, 1)):
         H = np.loadtxt(root / f"H_1_to_{n}.txt")
         img = cv2.imread(str(root / "images" / f"img{n}.pgm"), cv2.IMREAD_GRAYSCALE)
         correct, med = frame_errors(f1, detector(img), H)
-        s_correct, s_med = frame_errors(s1, sift_similarity_features(img), H)
+        s_correct, s_med = frame_errors(s1, sift(img), H)
         print(f"boat 1->{n}: Hessian-affine {correct} correct, median frame error {med:.3f}; "
               f"SIFT similarity {s_correct} correct, median {s_med:.3f}")
         assert correct >= min_correct

@@ -1,0 +1,330 @@
+"""Bags: sequence folders -> ROS 1 .bag / ROS 2 .db3 / .mcap, and frames out of any of them.
+
+Writing and reading go through ``rosbags`` (typestore, writers, AnyReader); .mcap input is read
+record by record with ``mcap``'s stream reader so that a truncated file still yields its
+readable part. No ROS installation is needed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.msg import get_types_from_msg
+
+from .datasets import Sequence, quat_to_rot
+from .geometry import Camera, CameraError
+from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array
+from .posemsg import rot_to_quat
+
+TOPICS = {"image": "/camera/image_raw", "compressed": "/camera/image_raw/compressed", "info": "/camera/camera_info",
+          "gt": "/ground_truth/pose", "tf": "/tf"}
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+FORMATS = ("mcap", "sqlite3", "ros1")
+
+
+class BagError(ValueError):
+    """A bag that cannot be read or written as asked."""
+
+
+def typestore(ros1: bool = False):
+    """The message types of ROS 2 Kilted (or ROS 1 Noetic for .bag files, plus tf2_msgs/TFMessage)."""
+    if not ros1:
+        return get_typestore(Stores.ROS2_KILTED)
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
+    return ts
+
+
+def _stamp(ts, t: float):
+    sec = int(np.floor(t))
+    return ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000)
+
+
+def _header(ts, t: float, frame_id: str, ros1: bool, seq: int = 0):
+    H = ts.types["std_msgs/msg/Header"]
+    return H(seq=seq, stamp=_stamp(ts, t), frame_id=frame_id) if ros1 else H(stamp=_stamp(ts, t), frame_id=frame_id)
+
+
+def _messages_for_frame(ts, seq: Sequence, i: int, compressed: bool, ros1: bool) -> list[tuple[str, str, object]]:
+    """(topic, msgtype, message) of frame i: image, camera_info and ground truth when known."""
+    t = float(seq.stamps[i])
+    hdr = _header(ts, t, "camera", ros1, i)
+    img = seq.image(i)
+    out = []
+    if compressed:
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])
+        msg = ts.types["sensor_msgs/msg/CompressedImage"](header=hdr, format="jpeg", data=buf.ravel())
+        out.append((TOPICS["compressed"], "sensor_msgs/msg/CompressedImage", msg))
+    else:
+        f = array_to_image_fields(img)
+        f["data"] = np.frombuffer(f["data"], np.uint8)
+        out.append((TOPICS["image"], "sensor_msgs/msg/Image", ts.types["sensor_msgs/msg/Image"](header=hdr, **f)))
+    cam = seq.camera
+    K = cam.K.ravel()
+    P = np.c_[cam.K, np.zeros(3)].ravel()
+    dist = np.resize(cam.dist, 5) if cam.dist.size else np.zeros(5)
+    Roi = ts.types["sensor_msgs/msg/RegionOfInterest"]
+    names = ("D", "K", "R", "P") if ros1 else ("d", "k", "r", "p")
+    info = ts.types["sensor_msgs/msg/CameraInfo"](
+        header=hdr, height=img.shape[0], width=img.shape[1], distortion_model="plumb_bob",
+        **dict(zip(names, (dist, K, np.eye(3).ravel(), P), strict=True)),
+        binning_x=0, binning_y=0, roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+    out.append((TOPICS["info"], "sensor_msgs/msg/CameraInfo", info))
+    if seq.poses is not None:
+        T = seq.poses[i]
+        q = rot_to_quat(T[:3, :3])
+        P_ = ts.types["geometry_msgs/msg/Point"](x=T[0, 3], y=T[1, 3], z=T[2, 3])
+        Q_ = ts.types["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])
+        pose = ts.types["geometry_msgs/msg/PoseStamped"](header=_header(ts, t, "world", ros1, i),
+                                                         pose=ts.types["geometry_msgs/msg/Pose"](position=P_, orientation=Q_))
+        out.append((TOPICS["gt"], "geometry_msgs/msg/PoseStamped", pose))
+        V_ = ts.types["geometry_msgs/msg/Vector3"](x=T[0, 3], y=T[1, 3], z=T[2, 3])
+        tf = ts.types["geometry_msgs/msg/TransformStamped"](
+            header=_header(ts, t, "world", ros1, i), child_frame_id="camera_gt",
+            transform=ts.types["geometry_msgs/msg/Transform"](translation=V_, rotation=Q_))
+        out.append((TOPICS["tf"], "tf2_msgs/msg/TFMessage", ts.types["tf2_msgs/msg/TFMessage"](transforms=[tf])))
+    return out
+
+
+def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed: bool = False,
+             frames: range | None = None) -> int:
+    """Write a sequence folder as a bag; returns the number of frames written.
+
+    ``mcap``/``sqlite3``: a ROS 2 bag directory (as ``ros2 bag record -o OUT``); ``ros1``: a .bag file.
+    """
+    if fmt not in FORMATS:
+        raise BagError(f"unknown bag format {fmt!r}; use one of {', '.join(FORMATS)}")
+    seq = Sequence.load(seq_dir)
+    out = Path(out)
+    if out.exists():
+        raise BagError(f"{out} exists already; choose a new output path")
+    ros1 = fmt == "ros1"
+    ts = typestore(ros1)
+    idx = list(frames if frames is not None else range(len(seq)))
+    if ros1:
+        from rosbags.rosbag1 import Writer as Writer1
+
+        writer = Writer1(out)
+    else:
+        from rosbags.rosbag2 import StoragePlugin
+        from rosbags.rosbag2 import Writer as Writer2
+
+        plugin = StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3
+        writer = Writer2(out, version=9, storage_plugin=plugin)
+    serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
+    conns: dict[str, object] = {}
+    with writer:
+        for i in idx:
+            for topic, mtype, msg in _messages_for_frame(ts, seq, i, compressed, ros1):
+                if topic not in conns:
+                    conns[topic] = writer.add_connection(topic, mtype, typestore=ts)
+                writer.write(conns[topic], int(round(float(seq.stamps[i]) * 1e9)), serialize(msg, mtype))
+    return len(idx)
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Frame:
+    """One image of a bag with the calibration and ground truth known at that time."""
+
+    stamp: float
+    image: np.ndarray | None  # None when the message could not be decoded
+    error: str | None
+    camera: Camera | None
+    gt_pose: np.ndarray | None  # 4x4 T_WC, when the bag carries ground truth at this stamp
+
+
+@dataclass
+class RawMessage:
+    topic: str
+    msgtype: str
+    msg: object
+    log_time_ns: int
+
+
+def _bag_kind(path: Path) -> str:
+    if path.is_dir():
+        if list(path.glob("*.mcap")):
+            return "mcap"
+        if list(path.glob("*.db3")):
+            return "db3"
+        raise BagError(f"{path}: directory holds no .mcap or .db3 file")
+    if path.suffix in (".mcap", ".db3", ".bag"):
+        return path.suffix[1:]
+    raise BagError(f"{path}: unknown bag type; expected a .bag, .db3 or .mcap file or a ROS 2 bag directory")
+
+
+class BagReader:
+    """Messages of a .bag/.db3/.mcap (file or ROS 2 directory) in log-time order.
+
+    ``warnings`` collects what went wrong on the way (e.g. a truncated file) so callers can
+    report it; reading stops at the first unreadable record and keeps what came before.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.exists():
+            raise BagError(f"{self.path}: no such bag")
+        self.kind = _bag_kind(self.path)
+        self.warnings: list[str] = []
+        self.topics = self._topics()
+
+    def _mcap_file(self) -> Path:
+        return sorted(self.path.glob("*.mcap"))[0] if self.path.is_dir() else self.path
+
+    def _topics(self) -> dict[str, str]:
+        if self.kind == "mcap":
+            from mcap.records import Channel, Schema
+            from mcap.stream_reader import StreamReader
+
+            schemas, topics = {}, {}
+            try:
+                with open(self._mcap_file(), "rb") as fh:
+                    for rec in StreamReader(fh, skip_magic=False).records:
+                        if isinstance(rec, Schema):
+                            schemas[rec.id] = rec.name
+                        elif isinstance(rec, Channel):
+                            topics[rec.topic] = schemas.get(rec.schema_id, "")
+            except Exception:  # noqa: BLE001 - truncated/corrupt: keep what was read, messages() reports it
+                pass
+            return topics
+        from rosbags.highlevel import AnyReader
+
+        try:
+            with AnyReader([self.path], default_typestore=typestore()) as r:
+                return {c.topic: c.msgtype for c in r.connections}
+        except Exception as e:  # noqa: BLE001 - rosbags raises several types
+            raise BagError(f"{self.path}: cannot open bag ({type(e).__name__}: {e}); if it was cut short, "
+                           "re-record or convert it to .mcap, whose readable part can be replayed") from e
+
+    def messages(self, topics: set[str]) -> Iterator[RawMessage]:
+        """Deserialised messages on ``topics``."""
+        if self.kind == "mcap":
+            yield from self._mcap_messages(topics)
+            return
+        from rosbags.highlevel import AnyReader
+
+        with AnyReader([self.path], default_typestore=typestore()) as r:
+            conns = [c for c in r.connections if c.topic in topics]
+            try:
+                for c, t, raw in r.messages(connections=conns):
+                    yield RawMessage(c.topic, c.msgtype, r.deserialize(raw, c.msgtype), t)
+            except Exception as e:  # noqa: BLE001
+                self.warnings.append(f"{self.path}: stopped reading at a damaged record ({type(e).__name__}: {e})")
+
+    def _mcap_messages(self, topics: set[str]) -> Iterator[RawMessage]:
+        from mcap.records import Channel, Message, Schema
+        from mcap.stream_reader import StreamReader
+
+        ts = typestore()
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        n = 0
+        with open(self._mcap_file(), "rb") as fh:
+            try:
+                for rec in StreamReader(fh, skip_magic=False).records:
+                    if isinstance(rec, Schema):
+                        schemas[rec.id] = rec
+                        if rec.name not in ts.types and rec.encoding == "ros2msg":
+                            ts.register(get_types_from_msg(rec.data.decode(), rec.name))
+                    elif isinstance(rec, Channel):
+                        channels[rec.id] = rec
+                    elif isinstance(rec, Message):
+                        ch = channels.get(rec.channel_id)
+                        if ch is None or ch.topic not in topics:
+                            continue
+                        name = schemas[ch.schema_id].name
+                        mtype = name if "/msg/" in name else name.replace("/", "/msg/", 1)
+                        yield RawMessage(ch.topic, mtype, ts.deserialize_cdr(rec.data, mtype), rec.log_time)
+                        n += 1
+            except Exception as e:  # noqa: BLE001 - EndOfFile, bad CRC, ...
+                self.warnings.append(f"{self._mcap_file()}: truncated or damaged after {n} messages "
+                                     f"({type(e).__name__}); the readable part was used")
+
+
+def pick_topic(topics: dict[str, str], types: tuple[str, ...], what: str, wanted: str | None) -> str | None:
+    """The one topic of ``types`` (or ``wanted``); a clear error listing the topics otherwise."""
+    listing = ", ".join(f"{t} [{m}]" for t, m in sorted(topics.items())) or "none"
+    if wanted:
+        if wanted not in topics:
+            raise BagError(f"topic {wanted} not in the bag; it has: {listing}")
+        return wanted
+    found = [t for t, m in topics.items() if m in types]
+    if len(found) == 1:
+        return found[0]
+    if not found:
+        return None
+    raise BagError(f"several {what} topics ({', '.join(sorted(found))}); choose one with --{what}-topic. Bag topics: {listing}")
+
+
+def msg_time(msg) -> float:
+    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+
+
+def camera_from_msg(msg) -> Camera:
+    """CameraInfo (ROS 1 or 2 field names) -> Camera; CameraError when K is unusable."""
+    K = getattr(msg, "k", None)
+    K = getattr(msg, "K", None) if K is None else K
+    D = getattr(msg, "d", None)
+    D = getattr(msg, "D", None) if D is None else D
+    return Camera(np.asarray(K, np.float64).reshape(3, 3), np.asarray(D, np.float64), int(msg.width), int(msg.height))
+
+
+def pose_from_msg(msg) -> np.ndarray:
+    """PoseStamped -> 4x4."""
+    p, o = msg.pose.position, msg.pose.orientation
+    T = np.eye(4)
+    T[:3, :3] = quat_to_rot([o.x, o.y, o.z, o.w])
+    T[:3, 3] = [p.x, p.y, p.z]
+    return T
+
+
+def decode_image_msg(msg, msgtype: str) -> np.ndarray:
+    """Image/CompressedImage (rosbags message) -> array; ImageError when unusable."""
+    if msgtype.endswith("CompressedImage"):
+        return decode_compressed(msg.format, msg.data)
+    return image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data, msg.is_bigendian)
+
+
+def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
+                gt_topic: str | None = None) -> tuple[Iterator[Frame], dict[str, str | None]]:
+    """Frames of a bag with auto-detected topics; errors name the topics the bag has."""
+    topics = reader.topics
+    img_t = pick_topic(topics, IMAGE_TYPES, "image", image_topic)
+    if img_t is None:
+        listing = ", ".join(f"{t} [{m}]" for t, m in sorted(topics.items())) or "none"
+        raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}")
+    info_t = pick_topic(topics, ("sensor_msgs/msg/CameraInfo",), "info", info_topic)
+    gt_t = pick_topic(topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)
+    chosen = {"image": img_t, "camera_info": info_t, "ground_truth": gt_t}
+
+    def gen() -> Iterator[Frame]:
+        camera, gt = None, {}
+        pending: list[tuple[float, np.ndarray | None, str | None]] = []
+        for m in reader.messages({t for t in (img_t, info_t, gt_t) if t}):
+            if m.topic == info_t:
+                try:
+                    camera = camera_from_msg(m.msg)
+                except (CameraError, ValueError):
+                    pass
+            elif m.topic == gt_t:
+                gt[round(msg_time(m.msg), 6)] = pose_from_msg(m.msg)
+            else:
+                try:
+                    img, err = decode_image_msg(m.msg, m.msgtype), None
+                except ImageError as e:
+                    img, err = None, str(e)
+                pending.append((msg_time(m.msg), img, err))
+                # camera_info and ground truth share the image stamp and may come just after it
+                while len(pending) > 1:
+                    s, im, er = pending.pop(0)
+                    yield Frame(s, im, er, camera, gt.get(round(s, 6)))
+        for s, im, er in pending:
+            yield Frame(s, im, er, camera, gt.get(round(s, 6)))
+
+    return gen(), chosen

@@ -1,0 +1,281 @@
+"""``nmnet replay``: run the front end over a recorded bag and evaluate it.
+
+Reads .bag/.db3/.mcap (topics auto-detected), processes frame by frame, records the outputs
+to an .mcap, and prints a summary; with ground truth (in the bag, or ``--gt`` TUM file) also
+rotation/translation errors and pose AUC, and writes plots. ``--baseline`` runs the classic
+OpenCV pipeline (SIFT + mutual/ratio + MAGSAC++) over the same frames for comparison.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .bags import BagError, BagReader, read_frames
+from .datasets import read_tum
+from .debug_view import draw_matches
+from .geometry import pose_auc, pose_error_deg
+from .mcap_out import McapOutput
+from .pipeline import FrameResult, Frontend
+
+BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
+FAILED = ("too_few_matches", "pose_failed")
+STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
+
+
+class _Terminated(Exception):
+    pass
+
+
+def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
+    raise _Terminated()
+
+
+def gt_relative(T_prev: np.ndarray, T_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x_cur = R x_prev + t from two camera-to-world poses."""
+    T = np.linalg.inv(T_cur) @ T_prev
+    return T[:3, :3], T[:3, 3]
+
+
+def frame_error(r: FrameResult, T_prev: np.ndarray | None, T_cur: np.ndarray | None) -> tuple[float, float] | None:
+    """(rot, trans) error of one result; failures count as 180; None when not scorable."""
+    if T_prev is None or T_cur is None or r.status in ("first_frame", "size_changed"):
+        return None
+    R, t = gt_relative(T_prev, T_cur)
+    moving = np.linalg.norm(t) > STATIC_GT_M
+    if r.status == "no_motion":
+        return None if not moving else (180.0, 180.0)
+    if r.status in FAILED or r.pose is None:
+        return (180.0, 180.0)
+    if not moving:
+        return None
+    return pose_error_deg(r.pose, R, t)
+
+
+class Run:
+    """Everything one pass over the frames collects."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.results: list[FrameResult] = []
+        self.errors: list[tuple[float, float]] = []
+        self.err_stamps: list[float] = []
+        self.gt: list[np.ndarray | None] = []
+        self.seconds = 0.0
+
+    def summary(self, frames: int, dropped: int = 0) -> dict:
+        e = np.array(self.errors) if self.errors else np.zeros((0, 2))
+        aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
+        matches = [len(r.k0) for r in self.results if r.status != "first_frame"]
+        sel = [r.num_selected for r in self.results if r.status != "first_frame"]
+        statuses: dict[str, int] = {}
+        for r in self.results:
+            statuses[r.status] = statuses.get(r.status, 0) + 1
+        return {
+            "frames": frames, "processed": len(self.results), "dropped": dropped,
+            "fps": len(self.results) / self.seconds if self.seconds else 0.0,
+            "median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,
+            "median_trans_deg": float(np.median(e[:, 1])) if len(e) else None,
+            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2],
+            "scored_pairs": len(e), "matches_per_frame": float(np.mean(matches)) if matches else 0.0,
+            "selected_per_frame": float(np.mean(sel)) if sel else 0.0, "status": statuses,
+        }
+
+
+def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, gt_file: Path | None = None,
+                debug_images: bool = False, progress: bool = True, topics: dict | None = None,
+                log=print) -> tuple[Run, int, list[np.ndarray | None]]:
+    """One pass of the front end over a bag; returns the run, the frame count and the last good image."""
+    reader = BagReader(bag)
+    frames, chosen = read_frames(reader, **(topics or {}))
+    gt_tum = read_tum(gt_file) if gt_file else None
+    fe = Frontend(None, config)
+    run = Run(fe.config["selector"])
+    n_frames, prev_gt, overlay = 0, None, None
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(desc=f"replay {bag.name}", unit="frame", file=sys.stderr)
+    t0 = time.perf_counter()
+    try:
+        for f in frames:
+            n_frames += 1
+            if bar is not None:
+                bar.update(1)
+            if f.image is None:
+                log(f"frame at {f.stamp:.3f}: skipped, {f.error}")
+                continue
+            if f.camera is None:
+                log(f"frame at {f.stamp:.3f}: skipped, no camera_info yet")
+                continue
+            fe.camera = f.camera
+            T = f.gt_pose
+            if gt_tum is not None:
+                T = gt_tum[1][int(np.argmin(np.abs(gt_tum[0] - f.stamp)))]
+            r = fe.process(f.image, f.stamp)
+            run.results.append(r)
+            err = frame_error(r, prev_gt, T)
+            if err is not None:
+                run.errors.append(err)
+                run.err_stamps.append(f.stamp)
+            run.gt.append(T)
+            prev_gt = T
+            dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if r.status != "first_frame" else None
+            if dbg is not None and overlay is None and r.status == "ok":
+                overlay = dbg
+            if out is not None:
+                out.write_result(r, f.stamp, debug=dbg if debug_images else None)
+    finally:
+        run.seconds = time.perf_counter() - t0
+        if bar is not None:
+            bar.close()
+    for w in reader.warnings:
+        log(f"warning: {w}")
+    return run, n_frames, overlay
+
+
+def chain_trajectory(run: Run) -> tuple[np.ndarray, np.ndarray]:
+    """Estimated and ground-truth camera positions; each estimated step scaled to the GT step length."""
+    est, gt, T_est, T_gt_prev = [], [], None, None
+    for r, T in zip(run.results, run.gt, strict=True):
+        if T is None:
+            continue
+        if T_est is None:
+            T_est = T.copy()
+        else:
+            step = np.eye(4)
+            if r.pose is not None and r.status == "ok":
+                scale = np.linalg.norm((np.linalg.inv(T_gt_prev) @ T)[:3, 3])
+                step[:3, :3] = r.pose.R.T  # T_prev_cur = inv([R | t])
+                step[:3, 3] = -r.pose.R.T @ r.pose.t * scale
+            T_est = T_est @ step
+        T_gt_prev = T
+        est.append(T_est[:3, 3].copy())
+        gt.append(T[:3, 3].copy())
+    return np.array(est), np.array(gt)
+
+
+def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> list[Path]:
+    """Per-frame errors, trajectory (top view), match overlay."""
+    import cv2
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    fig, ax = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    for run in runs:
+        if run.errors:
+            e = np.array(run.errors)
+            ax[0].plot(run.err_stamps, e[:, 0], ".-", label=run.name)
+            ax[1].plot(run.err_stamps, e[:, 1], ".-", label=run.name)
+    ax[0].set_ylabel("rotation error (deg)")
+    ax[1].set_ylabel("translation dir. error (deg)")
+    ax[1].set_xlabel("time (s)")
+    for a in ax:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
+    fig.tight_layout()
+    paths.append(out_dir / "errors.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 5))
+    gt_drawn = False
+    for run in runs:
+        est, gt = chain_trajectory(run)
+        if len(gt) == 0:
+            continue
+        if not gt_drawn:
+            ax.plot(gt[:, 0], gt[:, 2], "k-", lw=2, label="ground truth")
+            gt_drawn = True
+        ax.plot(est[:, 0], est[:, 2], ".-", label=f"{run.name} (scale from GT)")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("z (m)")
+    ax.axis("equal")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    paths.append(out_dir / "trajectory.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    if overlay is not None:
+        paths.append(out_dir / "matches.png")
+        cv2.imwrite(str(paths[-1]), overlay)
+    return paths
+
+
+def print_summary(s: dict, name: str) -> None:
+    """Human-readable summary of one run."""
+    line = f"{name}: {s['processed']}/{s['frames']} frames at {s['fps']:.2f} fps, {s['matches_per_frame']:.0f} matches and " \
+           f"{s['selected_per_frame']:.0f} selected per frame"
+    print(line)
+    if s["median_rot_deg"] is not None:
+        print(f"   vs ground truth ({s['scored_pairs']} pairs): median rotation error {s['median_rot_deg']:.3f} deg, translation "
+              f"{s['median_trans_deg']:.2f} deg, AUC@5/10/20 {s['auc5']:.1f} / {s['auc10']:.1f} / {s['auc20']:.1f}")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """CLI options of ``nmnet replay``."""
+    p.add_argument("bag", type=Path, help=".bag, .db3 or .mcap file, or a ROS 2 bag directory")
+    p.add_argument("--out", type=Path, required=True, help="output .mcap with matches and relative poses")
+    p.add_argument("--gt", type=Path, default=None, help="ground truth as a TUM file (else the bag's PoseStamped, if any)")
+    p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
+    p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots (default: next to --out)")
+    p.add_argument("--image-topic", default=None)
+    p.add_argument("--info-topic", default=None)
+    p.add_argument("--gt-topic", default=None)
+    p.add_argument("--selector", default="nmnet+magsac", help="correspondence selector (see nmnet eval)")
+    p.add_argument("--max-keypoints", type=int, default=2000)
+    p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
+    p.add_argument("--baseline", action="store_true", help="also run SIFT + ratio + MAGSAC++ on the same frames and print both")
+    p.add_argument("--no-progress", action="store_true")
+
+
+def main(args: argparse.Namespace) -> int:
+    """Entry point of ``nmnet replay`` (offline)."""
+    if not args.bag.exists():
+        raise BagError(f"{args.bag}: no such bag")
+    out = McapOutput(args.out)  # fails before any processing when not writable
+    plots_dir = args.plots or args.out.parent
+    topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
+    old = signal.signal(signal.SIGTERM, _raise_terminated)
+    runs, interrupted = [], False
+    try:
+        cfg = {"selector": args.selector, "max_keypoints": args.max_keypoints}
+        run, n, overlay = process_bag(args.bag, out, cfg, args.gt, args.debug_images, not args.no_progress, topics)
+        runs.append(run)
+        if args.baseline:
+            base, _, _ = process_bag(args.bag, None, {**BASELINE, "max_keypoints": args.max_keypoints}, args.gt,
+                                     progress=not args.no_progress, topics=topics)
+            base.name = "SIFT+ratio+MAGSAC++"
+            runs.append(base)
+    except (KeyboardInterrupt, _Terminated):
+        interrupted = True
+        print("interrupted: closing the output file", file=sys.stderr)
+    finally:
+        out.close()
+        signal.signal(signal.SIGTERM, old)
+    if not runs:
+        print(f"output: {args.out} ({out.count} messages)")
+        return 130
+    summary = runs[0].summary(n)
+    print_summary(summary, runs[0].name)
+    if len(runs) > 1:
+        summary["baseline"] = runs[1].summary(n)
+        print_summary(summary["baseline"], runs[1].name)
+    plots_dir.mkdir(parents=True, exist_ok=True)
+    for p in write_plots(runs, overlay, plots_dir):
+        print(f"plot: {p}")
+    print(f"output: {args.out} ({out.count} messages)")
+    if args.json:
+        args.json.write_text(json.dumps(summary, indent=1))
+    return 130 if interrupted else 0
