@@ -30,6 +30,6 @@ def main(args: argparse.Namespace) -> int:
     mcap.unlink(missing_ok=True)
     print(f"replaying {args.bag} (offline) -> {out}/")
     ns = argparse.Namespace(bag=args.bag, out=mcap, gt=None, json=out / "summary.json", plots=out, image_topic=None,
-                            info_topic=None, gt_topic=None, selector="nmnet+magsac", max_keypoints=2000,
+                            info_topic=None, gt_topic=None, selector="nmnet+magsac", max_keypoints=2000, detector="hessian-affine",
                             debug_images=False, baseline=True, no_progress=False)
     return replay.main(ns)

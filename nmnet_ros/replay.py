@@ -130,7 +130,7 @@ def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, g
             dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if r.status != "first_frame" else None
             if dbg is not None and overlay is None and r.status == "ok":
                 overlay = dbg
-            if out is not None:
+            if out is not None and dbg is not None and r.status != "size_changed":
                 out.write_result(r, f.stamp, debug=dbg if debug_images else None)
     finally:
         run.seconds = time.perf_counter() - t0
@@ -234,6 +234,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--info-topic", default=None)
     p.add_argument("--gt-topic", default=None)
     p.add_argument("--selector", default="nmnet+magsac", help="correspondence selector (see nmnet eval)")
+    p.add_argument("--detector", default="hessian-affine", choices=("hessian-affine", "sift"), help="local feature frames")
     p.add_argument("--max-keypoints", type=int, default=2000)
     p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
     p.add_argument("--baseline", action="store_true", help="also run SIFT + ratio + MAGSAC++ on the same frames and print both")
@@ -250,7 +251,7 @@ def main(args: argparse.Namespace) -> int:
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
-        cfg = {"selector": args.selector, "max_keypoints": args.max_keypoints}
+        cfg = {"selector": args.selector, "max_keypoints": args.max_keypoints, "detector": args.detector}
         run, n, overlay = process_bag(args.bag, out, cfg, args.gt, args.debug_images, not args.no_progress, topics)
         runs.append(run)
         if args.baseline:

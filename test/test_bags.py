@@ -1,0 +1,156 @@
+"""Bags: make-bag round trips, replay outputs readable by rosbags and mcap, bad bags and interruptions."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nmnet_ros.bags import BagError, BagReader, make_bag, read_frames, typestore
+from nmnet_ros.demo import SAMPLE_BAG
+
+from .conftest import ROOT, data_dir
+
+
+def nmnet(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "nmnet_ros.cli", *args], capture_output=True, text=True, cwd=ROOT, timeout=timeout)
+
+
+def read_output(path: Path) -> dict[str, int]:
+    """Message counts per topic, checked with both rosbags and mcap readers."""
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    with open(path, "rb") as fh:
+        counts_mcap: dict[str, int] = {}
+        for _, channel, _ in make_reader(fh).iter_messages():
+            counts_mcap[channel.topic] = counts_mcap.get(channel.topic, 0) + 1
+    counts: dict[str, int] = {}
+    with AnyReader([path]) as r:
+        for c, _, raw in r.messages():
+            r.deserialize(raw, c.msgtype)
+            counts[c.topic] = counts.get(c.topic, 0) + 1
+    assert counts == counts_mcap
+    return counts
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bags")
+    seq = data_dir("kitti-07")
+    out = {}
+    for fmt, name in (("mcap", "b_mcap"), ("sqlite3", "b_db3"), ("ros1", "b.bag")):
+        out[fmt] = root / name
+        assert make_bag(seq, out[fmt], fmt, compressed=fmt != "sqlite3", frames=range(50, 54)) == 4
+    return out
+
+
+def test_round_trip_all_formats_same_frames_and_results(bags, tmp_path):
+    frames = {}
+    for fmt, path in bags.items():
+        it, chosen = read_frames(BagReader(path))
+        frames[fmt] = list(it)
+        assert chosen["camera_info"] == "/camera/camera_info" and chosen["ground_truth"] == "/ground_truth/pose"
+    assert [len(v) for v in frames.values()] == [4, 4, 4]
+    for a, b, c in zip(*frames.values(), strict=True):
+        assert a.stamp == pytest.approx(b.stamp) == pytest.approx(c.stamp)
+        np.testing.assert_array_equal(a.image, c.image)  # same JPEG bytes in .mcap and .bag
+        assert np.abs(a.image.astype(int) - b.image.astype(int)).mean() < 3  # raw Image vs JPEG
+        np.testing.assert_allclose(a.camera.K, b.camera.K)
+        np.testing.assert_allclose(a.gt_pose, c.gt_pose)
+    seq_gt = np.loadtxt(data_dir("kitti-07") / "groundtruth.txt")[50]
+    np.testing.assert_allclose(frames["mcap"][0].gt_pose[:3, 3], seq_gt[1:4], atol=1e-9)
+    results = {}
+    for fmt in ("mcap", "ros1"):
+        out = tmp_path / f"{fmt}.mcap"
+        r = nmnet("replay", str(bags[fmt]), "--out", str(out), "--json", str(tmp_path / f"{fmt}.json"), "--no-progress")
+        assert r.returncode == 0, r.stderr
+        results[fmt] = json.loads((tmp_path / f"{fmt}.json").read_text())
+        assert read_output(out)["/nmnet_node/matches"] == 3
+    for key in ("processed", "median_rot_deg", "median_trans_deg", "auc5"):
+        assert results["mcap"][key] == pytest.approx(results["ros1"][key])
+    assert results["mcap"]["median_rot_deg"] < 1.0
+
+
+def test_truncated_mcap_reports_and_uses_readable_part(tmp_path):
+    src = next(SAMPLE_BAG.glob("*.mcap"))
+    cut = tmp_path / "cut.mcap"
+    data = src.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.3)])
+    r = nmnet("replay", str(cut), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress",
+              "--detector", "sift", "--selector", "ratio+magsac")
+    assert r.returncode == 0, r.stderr
+    assert "truncated" in r.stdout
+    s = json.loads((tmp_path / "s.json").read_text())
+    assert 3 <= s["processed"] < 40
+    assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"] - 1
+
+
+def test_bag_without_images_lists_its_topics(tmp_path):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    ts = typestore()
+    path = tmp_path / "noimg"
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c = w.add_connection("/imu/temperature", "sensor_msgs/msg/Temperature", typestore=ts)
+        msg = ts.types["sensor_msgs/msg/Temperature"](header=ts.types["std_msgs/msg/Header"](
+            stamp=ts.types["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="imu"), temperature=20.0, variance=0.0)
+        w.write(c, 1, ts.serialize_cdr(msg, "sensor_msgs/msg/Temperature"))
+    with pytest.raises(BagError, match="no sensor_msgs/Image.*/imu/temperature"):
+        read_frames(BagReader(path))
+    r = nmnet("replay", str(path), "--out", str(tmp_path / "o.mcap"))
+    assert r.returncode == 2 and "/imu/temperature" in r.stderr
+
+
+def test_unwritable_output_fails_before_processing(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    t = time.monotonic()
+    r = nmnet("replay", str(SAMPLE_BAG), "--out", str(blocker / "out.mcap"))
+    assert r.returncode == 2 and "cannot write output" in r.stderr and "frames" not in r.stdout
+    assert time.monotonic() - t < 30
+
+
+def test_missing_bag_and_unknown_format(tmp_path):
+    r = nmnet("replay", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "o.mcap"))
+    assert r.returncode == 2 and "no such bag" in r.stderr
+    odd = tmp_path / "x.txt"
+    odd.write_text("hello")
+    with pytest.raises(BagError, match="unknown bag type"):
+        BagReader(odd)
+
+
+def test_sigterm_mid_replay_leaves_valid_output(tmp_path):
+    out = tmp_path / "o.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out", str(out),
+                             "--detector", "sift", "--selector", "ratio+magsac"], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(12)
+    assert proc.poll() is None, "replay finished before it could be interrupted"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in err
+    counts = read_output(out)
+    assert 0 < counts.get("/nmnet_node/matches", 0) < 39
+
+
+def test_demo_without_shared_data(tmp_path):
+    """`nmnet demo` needs only the package: shipped weights and sample bag."""
+    pkg = tmp_path / "pkg"
+    shutil.copytree(ROOT / "nmnet_ros", pkg / "nmnet_ros", ignore=shutil.ignore_patterns("__pycache__"))
+    r = subprocess.run([sys.executable, "-m", "nmnet_ros.cli", "demo", "--out-dir", str(tmp_path / "demo")], cwd=pkg,
+                       capture_output=True, text=True, timeout=1200)
+    assert r.returncode == 0, r.stderr
+    print(r.stdout)
+    s = json.loads((tmp_path / "demo" / "summary.json").read_text())
+    assert s["processed"] == 40 and s["median_rot_deg"] < 1.0
+    for name in ("errors.png", "trajectory.png", "matches.png", "nmnet_output.mcap"):
+        assert (tmp_path / "demo" / name).stat().st_size > 1000
+    assert "SIFT+ratio+MAGSAC++" in r.stdout
