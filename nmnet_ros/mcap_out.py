@@ -47,6 +47,11 @@ class McapOutput:
         self._writer.add_message(self._channel(topic, msgtype), log_time=t_ns, data=bytes(data), publish_time=t_ns)
         self.count += 1
 
+    def write_raw(self, topic: str, msgtype: str, data: bytes, t_ns: int) -> None:
+        """Append an already CDR-serialised message (e.g. from rclpy's serialize_message)."""
+        self._writer.add_message(self._channel(topic, msgtype), log_time=t_ns, data=bytes(data), publish_time=t_ns)
+        self.count += 1
+
     def _header(self, stamp: float, frame_id: str):
         T = self.ts.types
         sec = int(np.floor(stamp))

@@ -154,3 +154,20 @@ def test_demo_without_shared_data(tmp_path):
     for name in ("errors.png", "trajectory.png", "matches.png", "nmnet_output.mcap"):
         assert (tmp_path / "demo" / name).stat().st_size > 1000
     assert "SIFT+ratio+MAGSAC++" in r.stdout
+
+
+def test_live_replay_agrees_with_offline(tmp_path):
+    """The node as its own process, fed at recorded timing (slowed down), against the offline pass."""
+    live = nmnet("replay", str(SAMPLE_BAG), "--out", str(tmp_path / "live.mcap"), "--json", str(tmp_path / "live.json"),
+                 "--live", "--rate", "0.1")
+    assert live.returncode == 0, live.stderr
+    off = nmnet("replay", str(SAMPLE_BAG), "--out", str(tmp_path / "off.mcap"), "--json", str(tmp_path / "off.json"),
+                "--no-progress")
+    assert off.returncode == 0, off.stderr
+    s_live, s_off = (json.loads((tmp_path / f"{m}.json").read_text()) for m in ("live", "off"))
+    print("live", s_live, "\noffline", s_off)
+    assert s_live["frames"] == s_off["frames"] == 40
+    assert s_live["processed"] + s_live["dropped"] == 40 and s_live["processed"] >= 5
+    counts = read_output(tmp_path / "live.mcap")
+    assert counts["/nmnet_node/matches"] == s_live["processed"] - 1
+    assert s_live["median_rot_deg"] < 1.0 and abs(s_live["median_rot_deg"] - s_off["median_rot_deg"]) < 0.5

@@ -1,0 +1,160 @@
+"""``nmnet replay BAG --live``: play a ROS 2 bag onto topics, the node in its own process, record its outputs.
+
+The bag's image and camera_info messages are published at recorded timing (x ``rate``) after the
+node has subscribed; the node's ``~/matches`` and ``~/relative_pose`` are recorded to the output
+.mcap and then scored against the bag's ground truth like the offline mode.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .bags import BagError, BagReader, pick_topic, pose_from_msg, typestore
+from .datasets import quat_to_rot
+from .geometry import pose_auc, rotation_error_deg, translation_error_deg
+from .mcap_out import McapOutput
+
+NODE_NAME = "nmnet_node"
+
+
+def _rclpy_type(msgtype: str):
+    import importlib
+
+    pkg, _, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+def live_env() -> dict[str, str]:
+    """The environment for player and node: an own domain on localhost unless the user set one."""
+    env = dict(os.environ)
+    env.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "LARGE_DATA")
+    return env
+
+
+def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log=print) -> dict:
+    """Play, record, stop the node; returns counts and latencies."""
+    import rclpy
+    from rclpy.qos import QoSProfile, qos_profile_sensor_data
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    reader = BagReader(bag)
+    if reader.kind == "bag":
+        raise BagError(f"{bag}: live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags offline (without --live)")
+    img_t = pick_topic(reader.topics, ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage"), "image", None)
+    info_t = pick_topic(reader.topics, ("sensor_msgs/msg/CameraInfo",), "info", None)
+    if img_t is None:
+        raise BagError(f"{bag}: no image topic; the bag has: {', '.join(sorted(reader.topics))}")
+    compressed = reader.topics[img_t].endswith("CompressedImage")
+    env = live_env()
+    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTDDS_BUILTIN_TRANSPORTS")})
+    args = ["--ros-args", "-r", f"__node:={NODE_NAME}", "-p", f"use_compressed:={str(compressed).lower()}"]
+    in_topic = "image/compressed" if compressed else "image"
+    args += ["-r", f"{in_topic}:=/live/{in_topic}", "-r", "camera_info:=/live/camera_info", *(node_args or [])]
+    node_proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.node", *args], env=env)
+    rclpy.init()
+    ts = typestore()
+    stats = {"published": 0, "results": 0, "latency_ms": []}
+    sent_at: dict[int, float] = {}
+    try:
+        player = rclpy.create_node("nmnet_player")
+        pub_img = player.create_publisher(_rclpy_type(reader.topics[img_t]), f"/live/{in_topic}", qos_profile_sensor_data)
+        pub_info = player.create_publisher(_rclpy_type("sensor_msgs/msg/CameraInfo"), "/live/camera_info", qos_profile_sensor_data)
+
+        def record(topic: str, msgtype: str):
+            def cb(msg) -> None:
+                t_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                out.write_raw(topic, msgtype, serialize_message(msg), t_ns)
+                if topic.endswith("matches"):
+                    stats["results"] += 1
+                    if t_ns in sent_at:
+                        stats["latency_ms"].append(1000 * (time.monotonic() - sent_at[t_ns]))
+            return cb
+
+        for suffix, mtype in (("matches", "sensor_msgs/msg/PointCloud2"),
+                              ("relative_pose", "geometry_msgs/msg/PoseWithCovarianceStamped")):
+            player.create_subscription(_rclpy_type(mtype), f"/{NODE_NAME}/{suffix}", record(f"/{NODE_NAME}/{suffix}", mtype),
+                                       QoSProfile(depth=100))
+        t_end = time.monotonic() + 60
+        while pub_img.get_subscription_count() == 0 and time.monotonic() < t_end:
+            if node_proc.poll() is not None:
+                raise RuntimeError(f"the node exited with code {node_proc.returncode} before subscribing")
+            rclpy.spin_once(player, timeout_sec=0.1)
+        if pub_img.get_subscription_count() == 0:
+            raise RuntimeError("the node did not subscribe within 60 s")
+        t0 = time.monotonic() + 1.0  # first messages after discovery can be lost
+        while time.monotonic() < t0:
+            rclpy.spin_once(player, timeout_sec=0.05)
+        if info_t:  # calibration first, so the first frame is usable (bags often log it just after the image)
+            first_info = next(iter(reader.messages({info_t})), None)
+            if first_info is not None:
+                pub_info.publish(deserialize_message(bytes(ts.serialize_cdr(first_info.msg, first_info.msgtype)),
+                                                     _rclpy_type(first_info.msgtype)))
+                rclpy.spin_once(player, timeout_sec=0.2)
+        first_ns, t_start = None, time.monotonic()
+        for m in reader.messages({t for t in (img_t, info_t) if t}):
+            first_ns = m.log_time_ns if first_ns is None else first_ns
+            due = t_start + (m.log_time_ns - first_ns) / 1e9 / rate
+            while (wait := due - time.monotonic()) > 0:
+                rclpy.spin_once(player, timeout_sec=min(wait, 0.02))
+            msg = deserialize_message(bytes(ts.serialize_cdr(m.msg, m.msgtype)), _rclpy_type(m.msgtype))
+            if m.topic == img_t:
+                sent_at[msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec] = time.monotonic()
+                pub_img.publish(msg)
+                stats["published"] += 1
+            else:
+                pub_info.publish(msg)
+        # drain: wait until results stop coming
+        last, quiet = stats["results"], time.monotonic()
+        while time.monotonic() - quiet < 8.0:
+            rclpy.spin_once(player, timeout_sec=0.1)
+            if stats["results"] != last:
+                last, quiet = stats["results"], time.monotonic()
+        player.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+        if node_proc.poll() is None:
+            node_proc.send_signal(signal.SIGINT)
+            try:
+                node_proc.wait(15)
+            except subprocess.TimeoutExpired:
+                node_proc.kill()
+    return stats
+
+
+def score_recording(path: Path, bag: Path) -> dict:
+    """Pose errors of a recorded ``~/relative_pose`` stream against the bag's ground truth.
+
+    Each result is relative to the node's previous processed frame, taken as the previous
+    result's stamp (the first result, whose reference is unknown, is not scored).
+    """
+    rec = BagReader(path)
+    poses = [(m.log_time_ns, m.msg) for m in rec.messages({f"/{NODE_NAME}/relative_pose"})]
+    src = BagReader(bag)
+    gt_t = pick_topic(src.topics, ("geometry_msgs/msg/PoseStamped",), "gt", None)
+    gt = {m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec: pose_from_msg(m.msg) for m in src.messages({gt_t})} \
+        if gt_t else {}
+    errs = []
+    for (t_prev, _), (t_cur, msg) in zip(poses, poses[1:], strict=False):
+        if t_prev not in gt or t_cur not in gt:
+            continue
+        T = np.linalg.inv(gt[t_cur]) @ gt[t_prev]
+        o, p = msg.pose.pose.orientation, msg.pose.pose.position
+        R_pc = quat_to_rot([o.x, o.y, o.z, o.w])
+        t_pc = np.array([p.x, p.y, p.z])
+        R, t = R_pc.T, -R_pc.T @ t_pc
+        errs.append((rotation_error_deg(R, T[:3, :3]), translation_error_deg(t, T[:3, 3])))
+    e = np.array(errs) if errs else np.zeros((0, 2))
+    aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
+    return {"median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,
+            "median_trans_deg": float(np.median(e[:, 1])) if len(e) else None,
+            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2], "scored_pairs": len(e)}
