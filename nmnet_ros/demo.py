@@ -29,7 +29,8 @@ def main(args: argparse.Namespace) -> int:
     mcap = out / "nmnet_output.mcap"
     mcap.unlink(missing_ok=True)
     print(f"replaying {args.bag} (offline) -> {out}/")
-    ns = argparse.Namespace(bag=args.bag, out=mcap, gt=None, json=out / "summary.json", plots=out, image_topic=None,
-                            info_topic=None, gt_topic=None, selector="nmnet+magsac", max_keypoints=2000, detector="hessian-affine",
-                            debug_images=False, baseline=True, no_progress=False)
+    parser = argparse.ArgumentParser()
+    replay.add_arguments(parser)  # the demo is exactly this replay command
+    ns = parser.parse_args([str(args.bag), "--out", str(mcap), "--json", str(out / "summary.json"), "--plots", str(out),
+                            "--baseline"])
     return replay.main(ns)

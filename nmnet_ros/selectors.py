@@ -88,7 +88,7 @@ def nmnet_logits(model: NMNet, c: Correspondences) -> np.ndarray:
 def nmnet_select(model: NMNet, c: Correspondences, cfg: dict) -> Selection:
     """Scores = sigmoid(logits); pose by the eight-point weighted with relu(tanh(logit))."""
     logits = nmnet_logits(model, c)
-    scores = 1.0 / (1.0 + np.exp(-logits))
+    scores = 0.5 * (1.0 + np.tanh(0.5 * logits))  # sigmoid without exp overflow
     threshold = cfg["score_threshold"] if cfg["score_threshold"] is not None else model.score_threshold
     mask = scores > threshold
     w = np.maximum(np.tanh(logits), 0.0)
