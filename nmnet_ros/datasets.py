@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import yaml
 
-from .geometry import Camera, CameraError, essential_from_pose, sym_epipolar_sq
+from .geometry import Camera, CameraError, essential_from_pose, relative_pose, sym_epipolar_sq
 
 LABEL_THRESHOLD = 1e-4  # squared symmetric epipolar distance, normalised coordinates (paper)
 
@@ -122,8 +122,7 @@ class Sequence:
         """(R, t) of frame i in frame j: x_j = R x_i + t."""
         if self.poses is None:
             raise DatasetError(f"{self.root}: no groundtruth.txt, so no ground-truth pose")
-        T = np.linalg.inv(self.poses[j]) @ self.poses[i]
-        return T[:3, :3], T[:3, 3]
+        return relative_pose(self.poses[i], self.poses[j])
 
     def pairs(self, gaps: tuple[int, ...] = (1,), frames: range | None = None) -> list[tuple[int, int]]:
         """pairs.txt when present, else (i, i+g) for every gap g with both frames in ``frames``."""

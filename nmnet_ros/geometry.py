@@ -61,6 +61,12 @@ def _checked_pair(x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return x0, x1
 
 
+def relative_pose(T_wc_a: np.ndarray, T_wc_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) with x_b = R x_a + t, from two camera-to-world poses."""
+    T = np.linalg.inv(T_wc_b) @ T_wc_a
+    return T[:3, :3], T[:3, 3]
+
+
 def skew(t: np.ndarray) -> np.ndarray:
     """Cross-product matrix [t]x."""
     return np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]], np.float64)

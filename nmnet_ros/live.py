@@ -19,7 +19,7 @@ import numpy as np
 
 from .bags import BagError, BagReader, pick_topic, pose_from_msg, typestore
 from .datasets import quat_to_rot
-from .geometry import pose_auc, rotation_error_deg, translation_error_deg
+from .geometry import pose_auc, relative_pose, rotation_error_deg, translation_error_deg
 from .mcap_out import McapOutput
 
 NODE_NAME = "nmnet_node"
@@ -147,12 +147,11 @@ def score_recording(path: Path, bag: Path) -> dict:
     for (t_prev, _), (t_cur, msg) in zip(poses, poses[1:], strict=False):
         if t_prev not in gt or t_cur not in gt:
             continue
-        T = np.linalg.inv(gt[t_cur]) @ gt[t_prev]
+        R_gt, t_gt = relative_pose(gt[t_prev], gt[t_cur])
         o, p = msg.pose.pose.orientation, msg.pose.pose.position
-        R_pc = quat_to_rot([o.x, o.y, o.z, o.w])
-        t_pc = np.array([p.x, p.y, p.z])
-        R, t = R_pc.T, -R_pc.T @ t_pc
-        errs.append((rotation_error_deg(R, T[:3, :3]), translation_error_deg(t, T[:3, 3])))
+        R_pc = quat_to_rot([o.x, o.y, o.z, o.w])  # published: T_prev_cur; scored: x_cur = R x_prev + t
+        R, t = R_pc.T, -R_pc.T @ np.array([p.x, p.y, p.z])
+        errs.append((rotation_error_deg(R, R_gt), translation_error_deg(t, t_gt)))
     e = np.array(errs) if errs else np.zeros((0, 2))
     aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
     return {"median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,

@@ -20,7 +20,7 @@ import numpy as np
 from .bags import BagError, BagReader, read_frames
 from .datasets import read_tum
 from .debug_view import draw_matches
-from .geometry import pose_auc, pose_error_deg
+from .geometry import pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
 from .pipeline import FrameResult, Frontend
 
@@ -37,17 +37,11 @@ def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
     raise _Terminated()
 
 
-def gt_relative(T_prev: np.ndarray, T_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """x_cur = R x_prev + t from two camera-to-world poses."""
-    T = np.linalg.inv(T_cur) @ T_prev
-    return T[:3, :3], T[:3, 3]
-
-
 def frame_error(r: FrameResult, T_prev: np.ndarray | None, T_cur: np.ndarray | None) -> tuple[float, float] | None:
     """(rot, trans) error of one result; failures count as 180; None when not scorable."""
     if T_prev is None or T_cur is None or r.status in ("first_frame", "size_changed"):
         return None
-    R, t = gt_relative(T_prev, T_cur)
+    R, t = relative_pose(T_prev, T_cur)
     moving = np.linalg.norm(t) > STATIC_GT_M
     if r.status == "no_motion":
         return None if not moving else (180.0, 180.0)
@@ -162,6 +156,15 @@ def chain_trajectory(run: Run) -> tuple[np.ndarray, np.ndarray]:
     return np.array(est), np.array(gt)
 
 
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> list[Path]:
     """Per-frame errors, trajectory (top view), match overlay."""
     import cv2
@@ -183,10 +186,7 @@ def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> l
     for a in ax:
         a.grid(alpha=0.3)
         a.legend(fontsize=8)
-    fig.tight_layout()
-    paths.append(out_dir / "errors.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(_save(fig, out_dir / "errors.png"))
 
     fig, ax = plt.subplots(figsize=(6, 5))
     gt_drawn = False
@@ -203,10 +203,7 @@ def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> l
     ax.axis("equal")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    paths.append(out_dir / "trajectory.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(_save(fig, out_dir / "trajectory.png"))
     if overlay is not None:
         paths.append(out_dir / "matches.png")
         cv2.imwrite(str(paths[-1]), overlay)
