@@ -91,9 +91,3 @@ def matches_to_cloud_fields(k0: np.ndarray, k1: np.ndarray, scores: np.ndarray) 
     n = len(pts)
     return {"height": 1, "width": n, "point_step": 20, "row_step": 20 * n, "is_bigendian": False, "is_dense": True,
             "fields": [(name, 4 * i) for i, name in enumerate(MATCH_FIELDS)], "data": pts.tobytes()}
-
-
-def cloud_to_matches(width: int, point_step: int, data) -> np.ndarray:
-    """PointCloud2 of matches -> (N,5) float32 [u0 v0 u1 v1 score]."""
-    buf = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data.tobytes(), np.float32)
-    return buf.reshape(width, point_step // 4)[:, :5] if width else np.zeros((0, 5), np.float32)

@@ -121,10 +121,13 @@ def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, g
                 run.err_stamps.append(f.stamp)
             run.gt.append(T)
             prev_gt = T
-            dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if r.status != "first_frame" else None
-            if dbg is not None and overlay is None and r.status == "ok":
+            if r.status in ("first_frame", "size_changed"):
+                continue
+            want_overlay = overlay is None and r.status == "ok"
+            dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if debug_images or want_overlay else None
+            if want_overlay:
                 overlay = dbg
-            if out is not None and dbg is not None and r.status != "size_changed":
+            if out is not None:
                 out.write_result(r, f.stamp, debug=dbg if debug_images else None)
     finally:
         run.seconds = time.perf_counter() - t0

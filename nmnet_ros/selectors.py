@@ -75,26 +75,39 @@ def _robust(c: Correspondences, keep: np.ndarray, method: str, cfg: dict) -> Sel
     return Selection(mask, None, pose)
 
 
-def nmnet_logits(model: NMNet, c: Correspondences) -> np.ndarray:
-    """Network logits of every correspondence (neighbours mined as the model was trained)."""
+def nmnet_logits(model: NMNet, c: Correspondences, neighbors: np.ndarray | None = None) -> np.ndarray:
+    """Network logits of every correspondence (neighbours mined as the model was trained, unless given)."""
     if len(c) == 0:
         return np.zeros(0, np.float32)
-    nb = mine_neighbors(model.config["neighbors"], c.k0, c.a0, c.k1, c.a1, model.config["k"])
+    nb = neighbors if neighbors is not None else mine_neighbors(model.config["neighbors"], c.k0, c.a0, c.k1, c.a1,
+                                                                 model.config["k"])
     x = torch.from_numpy(np.concatenate([c.x0, c.x1], 1).astype(np.float32))[None]
     with torch.inference_mode():
         return model(x, torch.from_numpy(nb)[None])[0].numpy()
 
 
-def nmnet_select(model: NMNet, c: Correspondences, cfg: dict) -> Selection:
-    """Scores = sigmoid(logits); pose by the eight-point weighted with relu(tanh(logit))."""
+def nmnet_scores(model: NMNet, c: Correspondences, cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(logits, probabilities, selection mask at the configured or calibrated threshold)."""
     logits = nmnet_logits(model, c)
     scores = 0.5 * (1.0 + np.tanh(0.5 * logits))  # sigmoid without exp overflow
     threshold = cfg["score_threshold"] if cfg["score_threshold"] is not None else model.score_threshold
-    mask = scores > threshold
+    return logits, scores, scores > threshold
+
+
+def nmnet_select(model: NMNet, c: Correspondences, cfg: dict) -> Selection:
+    """NM-Net's selection; pose by the eight-point weighted with relu(tanh(logit))."""
+    logits, scores, mask = nmnet_scores(model, c, cfg)
     w = np.maximum(np.tanh(logits), 0.0)
     E = weighted_eight_point(c.x0, c.x1, w) if len(c) else None
     pose = recover_pose(E, c.x0, c.x1, mask) if E is not None else None
     return Selection(mask, scores, pose)
+
+
+def nmnet_magsac_select(model: NMNet, c: Correspondences, cfg: dict) -> Selection:
+    """MAGSAC++ on NM-Net's selection; keeps the network's scores for the published matches."""
+    _, scores, mask = nmnet_scores(model, c, cfg)
+    sel = _robust(c, mask, "magsac", cfg)
+    return Selection(sel.mask, scores, sel.pose)
 
 
 def gms_mask(c: Correspondences) -> np.ndarray:
@@ -157,7 +170,7 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         model = load_model(weights.get(variant), variant)
         model.config["k"] = cfg.get("k", model.config["k"])
         if name == "nmnet+magsac":
-            return lambda c: _robust(c, nmnet_select(model, c, cfg).mask, "magsac", cfg)
+            return lambda c: nmnet_magsac_select(model, c, cfg)
         return lambda c: nmnet_select(model, c, cfg)
     table: dict[str, Callable[[Correspondences], Selection]] = {
         "ratio": lambda c: _filtered(c, c.ratio < cfg["ratio"]),

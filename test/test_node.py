@@ -111,6 +111,8 @@ def check_kitti_run(peer: Peer, seq: Sequence, frames) -> None:
     assert np.mean(np.array(errs) < 2.0) >= 0.9
     m = peer.matches[-1][1]
     assert [f.name for f in m.fields] == ["u0", "v0", "u1", "v1", "score"] and m.width > 50
+    scores = np.frombuffer(bytes(m.data), np.float32).reshape(-1, 5)[:, 4]
+    assert scores.min() > 0.5 and scores.max() <= 1.0 and len(np.unique(scores)) > 1  # NM-Net probabilities, not a 0/1 mask
 
 
 def kitti_info(seq: Sequence):
