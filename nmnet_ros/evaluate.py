@@ -16,7 +16,7 @@ import numpy as np
 
 from .cache import FeatureCache
 from .datasets import Sequence
-from .features import HessianAffine
+from .detectors import DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, to_correspondences
@@ -114,6 +114,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", type=Path, default=None, help="write {method: metrics} as JSON")
     p.add_argument("--plot", type=Path, default=Path("eval_curves.png"), help="recall-vs-error plot (PNG)")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
+    p.add_argument("--detector", default="hessian-affine", choices=sorted(DETECTORS), help="local feature frames")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -125,7 +126,7 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
-    pairs = load_eval_pairs(args.seqs, parse_gaps(args.gaps), FeatureCache(HessianAffine(), args.cache),
+    pairs = load_eval_pairs(args.seqs, parse_gaps(args.gaps), FeatureCache(make_detector(args.detector), args.cache),
                             args.stride, args.max_pairs)
     res = evaluate(pairs, methods, weights)
     print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%\n")

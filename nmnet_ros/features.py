@@ -165,5 +165,3 @@ class SiftSimilarity:
         return Features(np.array([k.pt for k in kps], np.float32), frames.astype(np.float32), d.astype(np.float32),
                         np.array([k.response for k in kps], np.float32))
 
-
-DETECTORS = {"hessian-affine": HessianAffine, "sift": SiftSimilarity}

@@ -33,6 +33,8 @@ from .posemsg import relative_pose_of_current
 PARAMS: dict[str, tuple] = {
     # name: (default, description, range or choices)
     "weights": ("", "NM-Net weights file; empty = the weights shipped with the package", None),
+    "detector": ("hessian-affine-fast", "local feature frames: hessian-affine-fast (batched, default), hessian-affine "
+                 "(kornia reference, ~1 s/frame), sift (similarity frames)", ("hessian-affine-fast", "hessian-affine", "sift")),
     "max_keypoints": (2000, "Hessian-affine keypoints per frame", (100, 8000)),
     "k": (8, "compatibility neighbours per correspondence (the shipped network is trained with 8)", (2, 16)),
     "score_threshold": (-1.0, "NM-Net inlier probability above which a match is published; -1 = the threshold "
@@ -94,7 +96,7 @@ class NMNetNode(Node):
 
         torch.set_num_threads(p["threads"])
         self.frontend = Frontend(None, {
-            "max_keypoints": p["max_keypoints"], "selector": SELECTORS[p["pose_estimator"]],
+            "detector": p["detector"], "max_keypoints": p["max_keypoints"], "selector": SELECTORS[p["pose_estimator"]],
             "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
             "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
         })

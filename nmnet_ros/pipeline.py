@@ -11,14 +11,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .detectors import make_detector
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
-from .features import DETECTORS, Features
+from .features import Features
 from .geometry import Camera, PoseEstimate
 from .matching import match_descriptors
 from .selectors import Correspondences, build
 
 DEFAULT_CONFIG: dict = {
-    "detector": "hessian-affine",  # or "sift" (similarity frames; the classic baseline's features)
+    "detector": "hessian-affine-fast",  # or "hessian-affine" (kornia reference), "sift" (similarity frames)
     "max_keypoints": FEATURE_DEFAULTS["max_keypoints"],
     "selector": "nmnet+magsac",  # any method of nmnet_ros.selectors except 'oracle'
     "weights": None,  # NM-Net weights file; None = shipped
@@ -57,9 +58,7 @@ class Frontend:
         self.config = {**DEFAULT_CONFIG, **(config or {})}
         c = self.config
         self.camera = camera
-        if c["detector"] not in DETECTORS:
-            raise ValueError(f"unknown detector {c['detector']!r}; use one of {', '.join(DETECTORS)}")
-        self.detector = DETECTORS[c["detector"]]({"max_keypoints": c["max_keypoints"]})
+        self.detector = make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]})
         weights = {"nmnet": c["weights"]} if c["weights"] else None
         self.select = build(c["selector"], {"score_threshold": c["score_threshold"], "k": c["k"]}, weights)
         self.prev: tuple[float, Features, tuple[int, int]] | None = None

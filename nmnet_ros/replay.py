@@ -20,6 +20,7 @@ import numpy as np
 from .bags import BagError, BagReader, read_frames
 from .datasets import read_tum
 from .debug_view import draw_matches
+from .detectors import DETECTORS
 from .geometry import pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
 from .pipeline import FrameResult, Frontend
@@ -234,7 +235,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--info-topic", default=None)
     p.add_argument("--gt-topic", default=None)
     p.add_argument("--selector", default="nmnet+magsac", help="correspondence selector (see nmnet eval)")
-    p.add_argument("--detector", default="hessian-affine", choices=("hessian-affine", "sift"), help="local feature frames")
+    p.add_argument("--detector", default="hessian-affine-fast", choices=sorted(DETECTORS), help="local feature frames")
     p.add_argument("--max-keypoints", type=int, default=2000)
     p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
     p.add_argument("--baseline", action="store_true", help="also run SIFT + ratio + MAGSAC++ on the same frames and print both")

@@ -18,6 +18,7 @@ import torch
 
 from .geometry import PoseEstimate, estimate_essential, recover_pose, weighted_eight_point
 from .model import NMNet, load_model
+from .model_fast import FastNMNet
 from .neighbors import mine_neighbors
 
 DEFAULT_CONFIG: dict = {
@@ -75,18 +76,21 @@ def _robust(c: Correspondences, keep: np.ndarray, method: str, cfg: dict) -> Sel
     return Selection(mask, None, pose)
 
 
-def nmnet_logits(model: NMNet, c: Correspondences, neighbors: np.ndarray | None = None) -> np.ndarray:
+def nmnet_logits(model: NMNet | FastNMNet, c: Correspondences, neighbors: np.ndarray | None = None) -> np.ndarray:
     """Network logits of every correspondence (neighbours mined as the model was trained, unless given)."""
     if len(c) == 0:
         return np.zeros(0, np.float32)
     nb = neighbors if neighbors is not None else mine_neighbors(model.config["neighbors"], c.k0, c.a0, c.k1, c.a1,
                                                                  model.config["k"])
-    x = torch.from_numpy(np.concatenate([c.x0, c.x1], 1).astype(np.float32))[None]
+    x = torch.from_numpy(np.concatenate([c.x0, c.x1], 1).astype(np.float32))
+    nbt = torch.from_numpy(np.ascontiguousarray(nb, np.int64))
+    if isinstance(model, FastNMNet):
+        return model(x, nbt).numpy()
     with torch.inference_mode():
-        return model(x, torch.from_numpy(nb)[None])[0].numpy()
+        return model(x[None], nbt[None])[0].numpy()
 
 
-def nmnet_scores(model: NMNet, c: Correspondences, cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def nmnet_scores(model: NMNet | FastNMNet, c: Correspondences, cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(logits, probabilities, selection mask at the configured or calibrated threshold)."""
     logits = nmnet_logits(model, c)
     scores = 0.5 * (1.0 + np.tanh(0.5 * logits))  # sigmoid without exp overflow
@@ -94,7 +98,7 @@ def nmnet_scores(model: NMNet, c: Correspondences, cfg: dict) -> tuple[np.ndarra
     return logits, scores, scores > threshold
 
 
-def nmnet_select(model: NMNet, c: Correspondences, cfg: dict) -> Selection:
+def nmnet_select(model: NMNet | FastNMNet, c: Correspondences, cfg: dict) -> Selection:
     """NM-Net's selection; pose by the eight-point weighted with relu(tanh(logit))."""
     logits, scores, mask = nmnet_scores(model, c, cfg)
     w = np.maximum(np.tanh(logits), 0.0)
@@ -103,7 +107,7 @@ def nmnet_select(model: NMNet, c: Correspondences, cfg: dict) -> Selection:
     return Selection(mask, scores, pose)
 
 
-def nmnet_magsac_select(model: NMNet, c: Correspondences, cfg: dict) -> Selection:
+def nmnet_magsac_select(model: NMNet | FastNMNet, c: Correspondences, cfg: dict) -> Selection:
     """MAGSAC++ on NM-Net's selection; keeps the network's scores for the published matches."""
     _, scores, mask = nmnet_scores(model, c, cfg)
     sel = _robust(c, mask, "magsac", cfg)
@@ -167,7 +171,7 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
     weights = weights or {}
     if name in ("nmnet", "nmnet-sp", "nmnet+magsac"):
         variant = "nmnet-sp" if name == "nmnet-sp" else "nmnet"
-        model = load_model(weights.get(variant), variant)
+        model = FastNMNet(load_model(weights.get(variant), variant))  # exact rewrite, ~2x faster on CPU
         model.config["k"] = cfg.get("k", model.config["k"])
         if name == "nmnet+magsac":
             return lambda c: nmnet_magsac_select(model, c, cfg)

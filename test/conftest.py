@@ -26,6 +26,14 @@ def detector():
     return HessianAffine()
 
 
+@pytest.fixture(scope="session", params=["hessian-affine", "hessian-affine-fast"])
+def any_detector(request, detector):
+    """The kornia reference and the fast Hessian-affine (both must pass the feature tests)."""
+    from nmnet_ros.fast_hessaff import FastHessianAffine
+
+    return detector if request.param == "hessian-affine" else FastHessianAffine()
+
+
 @pytest.fixture(scope="session")
 def cache(detector, tmp_path_factory):
     from nmnet_ros.cache import FeatureCache

@@ -16,20 +16,20 @@ from .conftest import data_dir
     np.zeros((10, 10), np.uint8),  # tiny
     np.zeros((0, 0), np.uint8),  # empty
 ])
-def test_blank_tiny_empty_images_give_empty_features(detector, image):
-    f = detector(image)
+def test_blank_tiny_empty_images_give_empty_features(any_detector, image):
+    f = any_detector(image)
     assert len(f) == 0 and f.frames.shape == (0, 2, 2) and f.descriptors.shape == (0, 128)
 
 
-def test_bad_channel_count_is_a_clear_error(detector):
+def test_bad_channel_count_is_a_clear_error(any_detector):
     with pytest.raises(ValueError, match="channels"):
-        detector(np.zeros((64, 64, 2), np.uint8))
+        any_detector(np.zeros((64, 64, 2), np.uint8))
 
 
-def test_colour_and_mono_give_features(detector):
+def test_colour_and_mono_give_features(any_detector):
     img = cv2.imread(str(data_dir("strecha-fountain-p11") / "images" / "0000.jpg"), cv2.IMREAD_COLOR)
     img = cv2.resize(img, (384, 256))
-    fc, fm = detector(img), detector(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+    fc, fm = any_detector(img), any_detector(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
     assert len(fc) > 200 and len(fm) > 200
     for f in (fc, fm):
         assert f.keypoints.shape == (len(f), 2) and f.frames.shape == (len(f), 2, 2)
@@ -59,17 +59,35 @@ def frame_errors(f1: Features, f2: Features, H: np.ndarray):
     return int(correct.sum()), float(np.median(err))
 
 
-def test_affine_frames_follow_the_homography_on_boat(detector):
+def test_affine_frames_follow_the_homography_on_boat(any_detector):
     root = data_dir("oxford-boat")
     img1 = cv2.imread(str(root / "images" / "img1.pgm"), cv2.IMREAD_GRAYSCALE)
     sift = SiftSimilarity()
-    f1, s1 = detector(img1), sift(img1)
+    f1, s1 = any_detector(img1), sift(img1)
     for n, min_correct in ((2, 600), (3, 1)):
         H = np.loadtxt(root / f"H_1_to_{n}.txt")
         img = cv2.imread(str(root / "images" / f"img{n}.pgm"), cv2.IMREAD_GRAYSCALE)
-        correct, med = frame_errors(f1, detector(img), H)
+        correct, med = frame_errors(f1, any_detector(img), H)
         s_correct, s_med = frame_errors(s1, sift(img), H)
         print(f"boat 1->{n}: Hessian-affine {correct} correct, median frame error {med:.3f}; "
               f"SIFT similarity {s_correct} correct, median {s_med:.3f}")
         assert correct >= min_correct
         assert med <= 0.15
+
+
+def test_fast_detector_keeps_the_reference_accuracy_on_boat(detector):
+    """Fast path: frame error within 0.02 of the kornia path and >= 90 % of its correct matches."""
+    from nmnet_ros.fast_hessaff import FastHessianAffine
+
+    root = data_dir("oxford-boat")
+    fast = FastHessianAffine()
+    img1 = cv2.imread(str(root / "images" / "img1.pgm"), cv2.IMREAD_GRAYSCALE)
+    r1, q1 = detector(img1), fast(img1)
+    for n in (2, 3):
+        H = np.loadtxt(root / f"H_1_to_{n}.txt")
+        img = cv2.imread(str(root / "images" / f"img{n}.pgm"), cv2.IMREAD_GRAYSCALE)
+        ref_correct, ref_err = frame_errors(r1, detector(img), H)
+        correct, err = frame_errors(q1, fast(img), H)
+        print(f"boat 1->{n}: kornia {ref_correct} correct, err {ref_err:.3f}; fast {correct} correct, err {err:.3f}")
+        assert correct >= 0.9 * ref_correct
+        assert err <= ref_err + 0.02

@@ -61,3 +61,19 @@ def test_bad_weight_files_name_the_file(tmp_path):
     torch.save({"state_dict": small.state_dict()}, wrong)  # no config: shapes do not fit the default net
     with pytest.raises(WeightsError, match="wrong.pt.*do not fit"):
         load_model(wrong)
+
+
+@pytest.mark.parametrize("variant", ["nmnet", "nmnet-sp"])
+@pytest.mark.parametrize("n,k", [(2000, 8), (37, 8), (500, 4), (300, 1)])
+def test_fast_model_logits_equal_the_reference(variant, n, k):
+    """The inference rewrite (GEMM convolutions, folded BatchNorm) is exact: logits agree to 1e-4."""
+    from nmnet_ros.model_fast import FastNMNet
+
+    model = load_model(variant=variant)
+    x, k0, a0, k1, a1 = inputs(n, seed=n + k)
+    nb = torch.from_numpy(compatibility_neighbors(k0, a0, k1, a1, k=k))
+    with torch.inference_mode():
+        ref = model(x[None], nb[None])[0]
+    fast = FastNMNet(model)(x, nb)
+    assert fast.shape == ref.shape and ref.abs().max() > 1  # real, non-trivial logits
+    torch.testing.assert_close(fast, ref, atol=1e-4, rtol=0)

@@ -1,0 +1,19 @@
+"""Registry of local-feature frame sources, by the name the CLI, the node and the config use."""
+
+from __future__ import annotations
+
+from .fast_hessaff import FastHessianAffine
+from .features import HessianAffine, SiftSimilarity
+
+DETECTORS: dict[str, type] = {
+    "hessian-affine-fast": FastHessianAffine,  # batched OpenCV/torch Hessian-affine (default)
+    "hessian-affine": HessianAffine,  # kornia reference path (what NM-Net was trained on)
+    "sift": SiftSimilarity,  # OpenCV SIFT with similarity frames (the classic baseline's features)
+}
+
+
+def make_detector(name: str, config: dict | None = None):
+    """The named detector, or a ValueError listing the choices."""
+    if name not in DETECTORS:
+        raise ValueError(f"unknown detector {name!r}; use one of {', '.join(DETECTORS)}")
+    return DETECTORS[name](config)

@@ -1,0 +1,106 @@
+"""NM-Net inference by exact rewrites of :class:`nmnet_ros.model.NMNet` (same logits to float rounding).
+
+- Features live as one (N*k, C) matrix, so every convolution is a single GEMM: a (1,3) convolution
+  along the neighbour axis is ``[x_{j-1}, x_j, x_{j+1}] @ W`` (zero padded, every second j for
+  stride 2); at width 1 only the centre tap meets data, so it is ``x @ W_centre``.
+- A convolution bias followed by InstanceNorm cancels (IN subtracts the channel mean): dropped.
+- Eval-mode BatchNorm after InstanceNorm is a per-channel affine map: folded into the
+  normalisation's scale and shift, so IN+BN+ReLU is one mean/var pass and one fused multiply-add.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .model import NMNet, ResBlock
+
+Norm = tuple[torch.Tensor, torch.Tensor, float]  # BN scale, BN shift, IN eps
+
+
+def _fold_norm(seq: torch.nn.Sequential) -> Norm:
+    """(gamma / sqrt(var + eps), beta - mean * that, IN eps) of an InstanceNorm -> BatchNorm pair."""
+    inorm, bn = seq[0], seq[1]
+    a = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+    return a.detach().clone(), (bn.bias - bn.running_mean * a).detach().clone(), float(inorm.eps)
+
+
+def _norm(x: torch.Tensor, norm: Norm, relu: bool) -> torch.Tensor:
+    """InstanceNorm over the rows (all correspondences and neighbours) + folded BatchNorm (+ ReLU)."""
+    a, b, eps = norm
+    ones = torch.full((1, x.shape[0]), 1.0 / x.shape[0], dtype=x.dtype)
+    xc = x - (ones @ x)  # column moments as GEMVs: far faster than a strided reduction
+    var = (ones @ (xc * xc))[0]
+    y = torch.addcmul(b, xc, a * torch.rsqrt(var + eps))
+    return y.relu_() if relu else y
+
+
+def _conv_weight(conv: torch.nn.Conv2d) -> torch.Tensor:
+    """(1,3) conv weight (out, in, 1, 3) -> (3, in, out): one matrix per tap (x_{j-1}, x_j, x_{j+1})."""
+    return conv.weight.detach()[:, :, 0, :].permute(2, 1, 0).contiguous()
+
+
+def _conv13(x: torch.Tensor, w: torch.Tensor, n: int, k: int, stride: int) -> torch.Tensor:
+    """(1,3) convolution along the neighbour axis, zero padded: (n*k, C) -> (n*k_out, C_out), three GEMMs."""
+    if k == 1:  # only the centre tap meets data
+        return x @ w[1]
+    v = x.view(n, k, -1)
+    if stride == 1:
+        y = (x @ w[1]).view(n, k, -1)
+        y[:, 1:] += (x @ w[0]).view(n, k, -1)[:, :-1]
+        y[:, :-1] += (x @ w[2]).view(n, k, -1)[:, 1:]
+    else:  # output j reads inputs 2j-1, 2j, 2j+1 (k even)
+        even, odd = v[:, 0::2], v[:, 1::2]
+        y = even @ w[1]
+        y += odd @ w[2]
+        y[:, 1:] += (odd[:, :-1] @ w[0])
+    return y.reshape(-1, w.shape[2])
+
+
+class _Block:
+    def __init__(self, blk: ResBlock) -> None:
+        self.stride = blk.conv1.stride[1]
+        self.w1, self.w2 = _conv_weight(blk.conv1), _conv_weight(blk.conv2)
+        self.n1, self.n2 = _fold_norm(blk.norm1), _fold_norm(blk.norm2)
+        sc = blk.shortcut
+        self.ws = sc.weight.detach()[:, :, 0, 0].t().contiguous() if isinstance(sc, torch.nn.Conv2d) else None
+        self.bs = sc.bias.detach().clone() if isinstance(sc, torch.nn.Conv2d) else None
+
+    def __call__(self, x: torch.Tensor, n: int, k: int) -> tuple[torch.Tensor, int]:
+        k_out = (k - 1) // self.stride + 1
+        y = _norm(_conv13(x, self.w1, n, k, self.stride), self.n1, relu=True)
+        y = _norm(_conv13(y, self.w2, n, k_out, 1), self.n2, relu=False)
+        if self.ws is None:
+            s = x
+        else:
+            xs = x if self.stride == 1 else x.view(n, k, -1)[:, ::self.stride].reshape(n * k_out, -1)
+            s = torch.addmm(self.bs, xs, self.ws)
+        return y.add_(s).relu_(), k_out
+
+
+class FastNMNet:
+    """Inference-only NM-Net built from a trained :class:`NMNet`; call with (N,4) coords, (N,k) neighbours."""
+
+    def __init__(self, model: NMNet) -> None:
+        model = model.eval()
+        self.config = model.config
+        self.score_threshold = model.score_threshold
+        self.we = model.embed[0].weight.detach()[:, 0, 0, :].t().contiguous()  # (4, C)
+        self.ne = _fold_norm(model.embed[1])
+        self.blocks = [_Block(b) for b in model.blocks]
+        self.wh = model.head[0].weight.detach()[:, :, 0, 0].t().contiguous()
+        self.nh = _fold_norm(model.head[1])
+        self.wo = model.head[2].weight.detach()[:, :, 0, 0].t().contiguous()  # (C, 1)
+        self.bo = model.head[2].bias.detach().clone()
+
+    @torch.inference_mode()
+    def __call__(self, corr: torch.Tensor, neighbors: torch.Tensor) -> torch.Tensor:
+        """corr (N,4) float32, neighbors (N,k) int64 (itself first) -> logits (N,)."""
+        n, k = neighbors.shape
+        f = _norm(corr @ self.we, self.ne, relu=True)  # (N, C): the (1,4) embedding is a linear map
+        x = f[neighbors.reshape(-1)]  # grouping: (N*k, C)
+        for blk in self.blocks:
+            x, k = blk(x, n, k)
+        if k != 1:
+            x = x.view(n, k, -1).mean(1)
+        h = _norm(x @ self.wh, self.nh, relu=True)
+        return torch.addmm(self.bo, h, self.wo)[:, 0]
