@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-CHUNK = 2048  # rows per block: bounds memory to ~CHUNK * N * 8 bytes
+CHUNK = 256  # rows per block: keeps the two CHUNK x N buffers in cache (2048: 22 ms, 256: 16 ms at N=2000)
 
 
 def local_transforms(k0: np.ndarray, a0: np.ndarray, k1: np.ndarray, a1: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:

@@ -56,6 +56,18 @@ SELECTORS = {"weighted8": "nmnet", "magsac": "nmnet+magsac"}
 
 
 @dataclass
+class _Detected:
+    """A decoded, detected frame on its way from stage 1 to stage 2."""
+
+    header: object
+    img: np.ndarray
+    feats: object
+    stamp: float
+    timings: dict
+    t_recv: float
+
+
+@dataclass
 class Stats:
     """Counters and recent latencies for /diagnostics."""
 
@@ -121,8 +133,13 @@ class NMNetNode(Node):
         self.pub_debug = self.create_publisher(Image, "~/debug_image", 2)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(1.0, self._publish_diagnostics)
-        self._worker = threading.Thread(target=self._work, name="nmnet-worker", daemon=True)
-        self._worker.start()
+        # Two stages on two threads: detection of frame t+1 overlaps matching/NM-Net/pose of frame t
+        # (OpenCV and torch release the GIL). Each frame's features are computed once and handed over.
+        self._ready: _Detected | None = None
+        self._workers = [threading.Thread(target=self._work, name="nmnet-detect", daemon=True),
+                         threading.Thread(target=self._relate, name="nmnet-relate", daemon=True)]
+        for w in self._workers:
+            w.start()
         if self.frontend.camera is None:
             self.get_logger().info("waiting for camera_info (or set fx/fy/cx/cy parameters) before processing frames")
 
@@ -156,10 +173,11 @@ class NMNetNode(Node):
             if self._slot is not None:
                 self.stats.dropped += 1
             self._slot = msg
-            self._cv.notify()
+            self._cv.notify_all()
 
     # -- work -------------------------------------------------------------------------------
     def _work(self) -> None:
+        """Stage 1: take the latest frame, check, decode, detect; hand over to stage 2 (waits while it is busy)."""
         while self._running:
             with self._cv:
                 while self._slot is None and self._running:
@@ -168,7 +186,30 @@ class NMNetNode(Node):
             if msg is None:
                 continue
             try:
-                self._process(msg)
+                det = self._detect(msg)
+            except Exception as e:  # noqa: BLE001 - the node must survive any one frame
+                self._warn("internal_error", f"frame skipped after an unexpected error: {type(e).__name__}: {e}")
+                continue
+            if det is None:
+                continue
+            with self._cv:
+                while self._ready is not None and self._running:
+                    self._cv.wait(0.2)
+                self._ready = det
+                self._cv.notify_all()
+
+    def _relate(self) -> None:
+        """Stage 2: match against the previous frame, NM-Net, pose, publish."""
+        while self._running:
+            with self._cv:
+                while self._ready is None and self._running:
+                    self._cv.wait(0.2)
+                det, self._ready = self._ready, None
+                self._cv.notify_all()
+            if det is None:
+                continue
+            try:
+                self._finish(det)
             except Exception as e:  # noqa: BLE001 - the node must survive any one frame
                 self._warn("internal_error", f"frame skipped after an unexpected error: {type(e).__name__}: {e}")
 
@@ -177,34 +218,38 @@ class NMNetNode(Node):
             return decode_compressed(msg.format, msg.data)
         return image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data, msg.is_bigendian)
 
-    def _process(self, msg) -> None:
+    def _detect(self, msg) -> _Detected | None:
         t_recv = time.perf_counter()
         if self.frontend.camera is None:
             self._warn("no_camera_info", "no camera_info yet and no fx/fy/cx/cy parameters: frame skipped")
-            return
+            return None
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         if self._last_stamp is not None and stamp <= self._last_stamp:
             kind = "duplicate_stamp" if stamp == self._last_stamp else "out_of_order_stamp"
             self._warn(kind, f"frame stamp {stamp:.6f} is not after the previous {self._last_stamp:.6f} ({kind}): skipped")
-            return
+            return None
         t = time.perf_counter()
         try:
             img = self._decode(msg)
         except ImageError as e:
             self._warn("bad_image", f"bad image message skipped: {e}")
-            return
-        decode_ms = 1000 * (time.perf_counter() - t)
+            return None
+        t_dec = time.perf_counter()
         size = (img.shape[1], img.shape[0])
         if self._size is not None and size != self._size:
             self._warn("size_changed", f"frame size changed {self._size[0]}x{self._size[1]} -> {size[0]}x{size[1]}: "
                                        "restarting from this frame")
         self._size = size
         self._last_stamp = stamp
-        result = self.frontend.process(img, stamp)
-        result.timings_ms = {"decode": decode_ms, **result.timings_ms}
+        feats = self.frontend.detect(img)
+        timings = {"decode": 1000 * (t_dec - t), "detect": 1000 * (time.perf_counter() - t_dec)}
+        return _Detected(msg.header, img, feats, stamp, timings, t_recv)
+
+    def _finish(self, d: _Detected) -> None:
+        result = self.frontend.process_features(d.feats, (d.img.shape[1], d.img.shape[0]), d.stamp, d.timings)
         self.stats.processed += 1
-        self._publish(msg.header, img, result)
-        self.stats.latency_ms.append(1000 * (time.perf_counter() - t_recv))
+        self._publish(d.header, d.img, result)
+        self.stats.latency_ms.append(1000 * (time.perf_counter() - d.t_recv))
         for k, v in result.timings_ms.items():
             self.stats.stage_ms.setdefault(k, deque(maxlen=100)).append(v)
 
@@ -265,11 +310,12 @@ class NMNetNode(Node):
         self.pub_diag.publish(arr)
 
     def stop(self) -> None:
-        """Stop the worker thread."""
+        """Stop the worker threads."""
         self._running = False
         with self._cv:
-            self._cv.notify()
-        self._worker.join(timeout=5.0)
+            self._cv.notify_all()
+        for w in self._workers:
+            w.join(timeout=5.0)
 
 
 def main(args: list[str] | None = None) -> int:
