@@ -14,6 +14,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -44,7 +45,8 @@ PARAMS: dict[str, tuple] = {
                        ("weighted8", "magsac")),
     "qos": ("sensor_data", "input QoS: sensor_data (best effort, depth 5) or reliable (depth 10)", ("sensor_data", "reliable")),
     "use_compressed": (False, "subscribe image/compressed (sensor_msgs/CompressedImage) instead of image", None),
-    "threads": (2, "CPU threads for torch", (1, 64)),
+    "threads": (1, "CPU threads per pipeline stage (torch and OpenCV); detection and the rest run in parallel, "
+                   "so 1 fills 2 cores", (1, 64)),
     "publish_debug_image": (True, "draw matches on ~/debug_image (only built when someone subscribes)", None),
     "fx": (0.0, "focal length x (px) used until camera_info arrives; 0 = wait for camera_info", (0.0, 1e5)),
     "fy": (0.0, "focal length y (px), see fx", (0.0, 1e5)),
@@ -107,6 +109,7 @@ class NMNetNode(Node):
         import torch
 
         torch.set_num_threads(p["threads"])
+        cv2.setNumThreads(p["threads"])
         self.frontend = Frontend(None, {
             "detector": p["detector"], "max_keypoints": p["max_keypoints"], "selector": SELECTORS[p["pose_estimator"]],
             "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
