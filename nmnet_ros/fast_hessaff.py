@@ -32,8 +32,9 @@ DEFAULT_CONFIG: dict = {
     "affine_patch": 16,  # equivalent patch sizes: they pick the pyramid level (as the reference's patches)
     "orientation_patch": 16,
     "patch_size": 16,  # descriptor
-    "grid": 16,  # samples per side of the shape and orientation patches (weighted sums need no more)
-    "orientation_grid": 16,
+    "affine_grid": 10,  # samples per side for the second moments (of a pre-smoothed structure tensor)
+    "orientation_grid": 12,
+    "orientation_extent": 0.75,  # central part of the orientation patch that is sampled
     "descriptor_grid": 16,
     "upright": False,
     "chunk": 4096,  # keypoints per batch of patch work (bounds memory on huge images)
@@ -48,16 +49,15 @@ def _gaussian(ps: int, sigma: float) -> torch.Tensor:
     return g[:, None] * g[None, :]
 
 
-def _sift_pooling(ps: int, cells: int = 4) -> torch.Tensor:
-    """(ps*ps, cells*cells) triangular spatial pooling of kornia's SIFTDescriptor (ksize 2*floor(ps/5), stride ps/4)."""
+def _sift_pooling_1d(ps: int, cells: int = 4) -> torch.Tensor:
+    """(cells, ps) triangular pooling weights of kornia's SIFTDescriptor along one axis (ksize 2*floor(ps/5), stride ps/4)."""
     stride = ps // cells
     ks = 2 * int(ps / (cells + 1))
     if (ks - ps + (cells - 1) * stride) % 2:
         ks += 1
     centres = (ps - 1) / 2 + (torch.arange(cells, dtype=torch.float32) - (cells - 1) / 2) * stride
     x = torch.arange(ps, dtype=torch.float32)
-    w = (ks / 2 - (x[None, :] - centres[:, None]).abs()).clamp(min=0) / (ks / 2)  # (cells, ps)
-    return torch.einsum("ay,bx->yxab", w, w).reshape(ps * ps, cells * cells)
+    return (ks / 2 - (x[None, :] - centres[:, None]).abs()).clamp(min=0) / (ks / 2)
 
 
 def upright(a: np.ndarray) -> np.ndarray:
@@ -84,6 +84,7 @@ class _Pyramid:
         while min(self.levels[-1].shape) // 2 >= min_side:
             self.levels.append(cv2.pyrDown(self.levels[-1]))
         self._fields: dict[tuple[str, int], np.ndarray] = {}
+        self.tensor_sigma = 1.0
 
     def field(self, name: str, lv: int) -> np.ndarray:
         """'grad': (H, W, 2) gx, gy; 'tensor': (H, W, 3) gx^2, gx gy, gy^2 (normalised Sobel)."""
@@ -98,7 +99,8 @@ class _Pyramid:
             if name == "grad":
                 self._fields[key] = cv2.merge([gx, gy])
             else:
-                self._fields[key] = cv2.merge([gx * gx, gx * gy, gy * gy])
+                # smoothed at one pixel so that a coarse sampling grid integrates it faithfully
+                self._fields[key] = cv2.GaussianBlur(cv2.merge([gx * gx, gx * gy, gy * gy]), (0, 0), self.tensor_sigma)
         return self._fields[key]
 
     def sample(self, name: str, frames: np.ndarray, centres: np.ndarray, ps: int, grid: int) -> np.ndarray:
@@ -150,12 +152,15 @@ class FastHessianAffine:
     def __init__(self, config: dict | None = None) -> None:
         self.config = {**DEFAULT_CONFIG, **(config or {})}
         c = self.config
-        g = c["grid"]  # Gaussian windows of the reference, in units of the patch half-width: 1, 1/3, sqrt(2)
+        g = c["affine_grid"]  # Gaussian windows of the reference, in units of the patch half-width: 1, 1/3, sqrt(2)
         self._w_aff = _gaussian(g, g / 2).reshape(-1)
-        self._w_ori = _gaussian(c["orientation_grid"], c["orientation_grid"] / 6).reshape(1, -1)
+        go = c["orientation_grid"]  # sigma 1/3 of the half-width, on a grid spanning orientation_extent of it
+        self._w_ori = _gaussian(go, go / (6 * c["orientation_extent"])).reshape(1, -1)
         gd = c["descriptor_grid"]
         self._w_desc = _gaussian(gd, gd / math.sqrt(2)).reshape(1, -1)
-        self._pool = _sift_pooling(gd)
+        w = _sift_pooling_1d(gd)
+        self._pool = torch.einsum("ay,bx->yxab", w, w).reshape(gd * gd, -1)  # (gd^2, 16) triangular cell weights
+        self._hbuf = torch.empty(0, 9, gd * gd)
         k = torch.exp(-((torch.arange(5, dtype=torch.float32) - 2) ** 2) / (2 * 1.6**2))
         self._ang_smooth = (k / k.sum()).view(1, 1, 5)
 
@@ -164,7 +169,7 @@ class FastHessianAffine:
         """Identifies the settings, for on-disk feature caches."""
         c = self.config
         return (f"fasthesaff-k{c['max_keypoints']}-a{c['affine_iterations']}x{c['affine_patch']}"
-                f"-o{c['orientation_patch']}-p{c['patch_size']}-g{c['grid']}x{c['orientation_grid']}x{c['descriptor_grid']}-m{c['mr_size']}-u{int(c['upright'])}")
+                f"-o{c['orientation_patch']}-p{c['patch_size']}-g{c['affine_grid']}x{c['orientation_grid']}x{c['descriptor_grid']}-m{c['mr_size']}-u{int(c['upright'])}")
 
     @torch.inference_mode()
     def __call__(self, image: np.ndarray) -> Features:
@@ -271,49 +276,48 @@ class FastHessianAffine:
 
     # -- affine shape, orientation, descriptor ------------------------------------------------
     def adapt_shape(self, pyr: _Pyramid, frames: np.ndarray, xy: np.ndarray) -> np.ndarray:
-        """One Baumberg step: U <- U M^-1/2 from the gradient second moments of the patch, scale kept (upright result)."""
+        """One Baumberg step: U <- U M^-1/2 from the gradient second moments of the patch, scale kept (upright result).
+
+        All 2x2 algebra is written out on (n,) arrays: U = [[p, 0], [q, r]] is the upright frame.
+        """
         u = upright(frames).astype(np.float64)
-        t = torch.from_numpy(pyr.sample("tensor", u, xy, self.config["affine_patch"], self.config["grid"]))
-        mi = (t.transpose(1, 2) @ self._w_aff).double().numpy()  # image-frame moments (n, 3)
-        m_img = np.stack([np.stack([mi[:, 0], mi[:, 1]], 1), np.stack([mi[:, 1], mi[:, 2]], 1)], 1)
-        mp = u.transpose(0, 2, 1) @ m_img @ u  # patch-frame moments U^T M U
-        m = np.stack([mp[:, 0, 0], mp[:, 0, 1], mp[:, 1, 1]], 1)
+        t = torch.from_numpy(pyr.sample("tensor", u, xy, self.config["affine_patch"], self.config["affine_grid"]))
+        ma, mb, mc = (t.transpose(1, 2) @ self._w_aff).double().numpy().T  # image-frame moments [[a, b], [b, c]]
+        p, q, r = u[:, 0, 0], u[:, 1, 0], u[:, 1, 1]
+        m = np.stack([p * p * ma + 2 * p * q * mb + q * q * mc, r * (p * mb + q * mc), r * r * mc], 1)  # U^T M U
         bad = (np.abs(m) < 1e-10 * max(float(np.abs(m).max()), 1e-30)).sum(1) >= 2
         m = m / np.maximum(m.max(1, keepdims=True), 1e-30)
-        a, b, cc = m[:, 0], m[:, 1], m[:, 2]
-        bad |= ~(a * cc - b * b > 1e-6)
-        a, b, cc = np.where(bad, 1.0, a), np.where(bad, 0.0, b), np.where(bad, 1.0, cc)
-        # Cholesky factor of inv([[a, b], [b, c]]) (kornia ellipse_to_laf)
-        sc = np.sqrt(cc)
+        a, b, c = m[:, 0], m[:, 1], m[:, 2]
+        bad |= ~(a * c - b * b > 1e-6)
+        a, b, c = np.where(bad, 1.0, a), np.where(bad, 0.0, b), np.where(bad, 1.0, c)
+        # lower-triangular Cholesky factor E of inv([[a, b], [b, c]]) (kornia ellipse_to_laf), then U E
+        sc = np.sqrt(c)
         bs = b / sc
         schur = np.sqrt(a - bs * bs)
-        e = np.zeros_like(u)
-        e[:, 0, 0] = 1 / schur
-        e[:, 1, 0] = -bs / (sc * schur)
-        e[:, 1, 1] = 1 / sc
-        s_in = np.sqrt(np.abs(np.linalg.det(frames.astype(np.float64))))
-        out = u @ e
-        out *= (s_in / np.sqrt(np.abs(np.linalg.det(out))))[:, None, None]
+        e00, e10, e11 = 1 / schur, -bs / (sc * schur), 1 / sc
+        o00, o10, o11 = p * e00, q * e00 + r * e10, r * e11
+        f = frames.astype(np.float64)
+        k = np.sqrt(np.abs(f[:, 0, 0] * f[:, 1, 1] - f[:, 0, 1] * f[:, 1, 0]) / np.abs(o00 * o11))  # keep the scale
+        out = np.zeros_like(f)
+        out[:, 0, 0], out[:, 1, 0], out[:, 1, 1] = k * o00, k * o10, k * o11
         return out.astype(np.float32)
 
     def orient(self, pyr: _Pyramid, frames: np.ndarray, xy: np.ndarray) -> np.ndarray:
-        """Dominant gradient direction (36-bin histogram, smoothed, parabolic peak): A <- A R(angle)."""
-        nb = 36
+        """Dominant gradient direction (36-bin histogram, smoothed, parabolic peak): A <- A R(angle).
+
+        The reference's window (sigma = 1/3 of the patch half-width) leaves the outer ring nearly
+        unweighted, so only the central ``orientation_extent`` of the patch is sampled.
+        """
+        nb, g, ext = 36, self.config["orientation_grid"], self.config["orientation_extent"]
         u = upright(frames)
-        g = self.config["orientation_grid"]
-        p = torch.from_numpy(pyr.sample("image", u * ((g + 2) / g), xy, self.config["orientation_patch"], g + 2)).view(-1, g + 2, g + 2)
+        f = ext * (g + 2) / g
+        p = torch.from_numpy(pyr.sample("image", u * f, xy, self.config["orientation_patch"] * f, g + 2)).view(-1, g + 2, g + 2)
         dx = p[:, :, 2:] - p[:, :, :-2]
         dy = p[:, 2:, :] - p[:, :-2, :]
-        gu = (dx[:, :-2] + 2 * dx[:, 1:-1] + dx[:, 2:]).flatten(1)
-        gv = (dy[:, :, :-2] + 2 * dy[:, :, 1:-1] + dy[:, :, 2:]).flatten(1)
-        mag = torch.sqrt(gu * gu + gv * gv) * self._w_ori
-        o = (torch.atan2(gv, gu) + math.pi) * (nb / (2 * math.pi))
-        b0 = torch.floor(o)
-        w1 = o - b0
-        b0 = b0.long() % nb
-        hist = torch.zeros(len(u), nb)
-        hist.scatter_add_(1, b0, (1 - w1) * mag)
-        hist.scatter_add_(1, (b0 + 1) % nb, w1 * mag)
+        gu = torch.add(dx[:, :-2] + dx[:, 2:], dx[:, 1:-1], alpha=2).flatten(1)  # Sobel
+        gv = torch.add(dy[:, :, :-2] + dy[:, :, 2:], dy[:, :, 1:-1], alpha=2).flatten(1)
+        hist = _soft_histogram(torch.atan2(gv, gu), torch.hypot(gu, gv).mul_(self._w_ori), nb)
+        hist = hist[:, :nb] + torch.nn.functional.pad(hist[:, nb:], (0, nb - 1))  # fold the wrap bin
         hist = torch.nn.functional.conv1d(torch.cat([hist[:, -2:], hist, hist[:, :2]], 1)[:, None], self._ang_smooth)[:, 0]
         val, idx = hist.max(1)
         left = hist.gather(1, ((idx - 1) % nb)[:, None])[:, 0]
@@ -332,16 +336,31 @@ class FastHessianAffine:
         p = torch.from_numpy(pyr.sample("image", frames * ((g + 2) / g), xy, self.config["patch_size"], g + 2)).view(n, g + 2, g + 2)
         gu = (p[:, 1:-1, 2:] - p[:, 1:-1, :-2]).reshape(n, -1)
         gv = (p[:, 2:, 1:-1] - p[:, :-2, 1:-1]).reshape(n, -1)
-        mag = (torch.sqrt(gu * gu + gv * gv) * self._w_desc)[:, None]
-        o = torch.atan2(gv, gu)[:, None] * (nb / (2 * math.pi))
-        b0 = torch.floor(o)
-        w1 = o - b0
-        b0 = b0.long() % nb
-        h = torch.zeros(n, nb, g * g)
-        h.scatter_add_(1, b0, (1 - w1) * mag)
-        h.scatter_add_(1, (b0 + 1) % nb, w1 * mag)
-        d = (h.view(n * nb, g * g) @ self._pool).view(n, -1)
-        d = torch.nn.functional.normalize(d, dim=1).clamp_(0, 0.2)
+        if self._hbuf.shape[0] < n:
+            self._hbuf = torch.empty(n, nb + 1, g * g)  # reused: a fresh multi-MB buffer costs page faults every frame
+        h = _soft_histogram(torch.atan2(gv, gu), torch.hypot(gu, gv).mul_(self._w_desc), nb, self._hbuf[:n])
+        d = (h.view(n * (nb + 1), g * g) @ self._pool).view(n, nb + 1, -1)  # spatial pooling, one GEMM
+        d[:, 0] += d[:, nb]  # fold the wrap bin
+        d = d[:, :nb].roll(-nb // 2, 1)  # bin 0 at angle 0, as kornia
+        d = torch.nn.functional.normalize(d.reshape(n, -1), dim=1).clamp_(0, 0.2)
         d = torch.nn.functional.normalize(d, dim=1)
         d = torch.sqrt(torch.nn.functional.normalize(d, p=1, dim=1) + 1e-10)
         return torch.nn.functional.normalize(d, dim=1).numpy()
+
+
+def _soft_histogram(angle: torch.Tensor, weight: torch.Tensor, nb: int, out: torch.Tensor | None = None) -> torch.Tensor:
+    """Linear-interpolated orientation histogram, bin b centred on the angle -pi + 2 pi b / nb.
+
+    (n, P) angles in [-pi, pi] and weights -> (n, nb + 1): bin nb is bin 0 again (the wrap),
+    left for the caller to fold in (after any linear pooling, where it is cheap). With ``out``
+    (a reusable (n, nb + 1, P) buffer) the samples are kept apart for spatial pooling.
+    """
+    o = (angle + math.pi).mul_(nb / (2 * math.pi)).clamp_(max=nb - 1e-4)  # in [0, nb)
+    b0 = o.long()  # floor (o >= 0)
+    w1 = (o - b0).mul_(weight)
+    w0 = weight - w1
+    if out is None:
+        h = torch.zeros(angle.shape[0], nb + 1)
+        return h.scatter_add_(1, b0, w0).scatter_add_(1, b0 + 1, w1)
+    out.zero_()
+    return out.scatter_add_(1, b0[:, None], w0[:, None]).scatter_add_(1, (b0 + 1)[:, None], w1[:, None])
