@@ -172,6 +172,7 @@ class BagReader:
             raise BagError(f"{self.path}: no such bag")
         self.kind = _bag_kind(self.path)
         self.warnings: list[str] = []
+        self._salvaged: _Db3Salvage | None = None
         self.topics = self._topics()
 
     def _mcap_file(self) -> Path:
@@ -199,13 +200,23 @@ class BagReader:
             with AnyReader([self.path], default_typestore=typestore()) as r:
                 return {c.topic: c.msgtype for c in r.connections}
         except Exception as e:  # noqa: BLE001 - rosbags raises several types
+            if self.kind == "db3":
+                self._salvaged = _Db3Salvage(self._db3_file(), e)
+                self.warnings.append(f"{self._db3_file()}: damaged or truncated ({e}); reading what is readable")
+                return self._salvaged.topics
             raise BagError(f"{self.path}: cannot open bag ({type(e).__name__}: {e}); if it was cut short, "
-                           "re-record or convert it to .mcap, whose readable part can be replayed") from e
+                           "re-record it, or convert it to .mcap or .db3, whose readable part can be replayed") from e
+
+    def _db3_file(self) -> Path:
+        return sorted(self.path.glob("*.db3"))[0] if self.path.is_dir() else self.path
 
     def messages(self, topics: set[str]) -> Iterator[RawMessage]:
         """Deserialised messages on ``topics``."""
         if self.kind == "mcap":
             yield from self._mcap_messages(topics)
+            return
+        if self._salvaged is not None:
+            yield from self._salvaged.messages(topics, self.warnings)
             return
         from rosbags.highlevel import AnyReader
 
@@ -245,6 +256,52 @@ class BagReader:
             except Exception as e:  # noqa: BLE001 - EndOfFile, bad CRC, ...
                 self.warnings.append(f"{self._mcap_file()}: truncated or damaged after {n} messages "
                                      f"({type(e).__name__}); the readable part was used")
+
+
+class _Db3Salvage:
+    """The readable part of a truncated rosbag2 SQLite file.
+
+    SQLite refuses a file shorter than its header's page count, so a copy is zero-padded to that
+    size; rows on the missing pages then fail one by one and reading stops at the first such row.
+    """
+
+    def __init__(self, path: Path, cause: Exception) -> None:
+        import sqlite3
+        import struct
+        import tempfile
+
+        data = path.read_bytes()
+        if len(data) < 100 or not data.startswith(b"SQLite format 3\0"):
+            raise BagError(f"{path}: not an SQLite bag ({cause})") from cause
+        page = struct.unpack(">H", data[16:18])[0] or 65536
+        page = 65536 if page == 1 else page
+        pages = struct.unpack(">I", data[28:32])[0]
+        self._tmp = tempfile.NamedTemporaryFile(suffix=".db3")  # noqa: SIM115 - lives as long as the reader
+        self._tmp.write(data + b"\0" * max(0, page * pages - len(data)))
+        self._tmp.flush()
+        self.path = path
+        self._con = sqlite3.connect(f"file:{self._tmp.name}?mode=ro&immutable=1", uri=True, check_same_thread=False)
+        try:
+            rows = self._con.execute("SELECT id, name, type FROM topics").fetchall()
+        except sqlite3.DatabaseError as e:
+            raise BagError(f"{path}: damaged beyond reading ({e}); re-record the bag") from e
+        self._ids = {i: (name, mtype) for i, name, mtype in rows}
+        self.topics = {name: mtype for name, mtype in self._ids.values()}
+
+    def messages(self, topics: set[str], warnings: list[str]) -> Iterator[RawMessage]:
+        """Messages in recording order until the first unreadable row."""
+        import sqlite3
+
+        ts = typestore()
+        n = 0
+        try:
+            for tid, t, data in self._con.execute("SELECT topic_id, timestamp, data FROM messages ORDER BY id"):
+                name, mtype = self._ids.get(tid, (None, None))
+                if name in topics:
+                    yield RawMessage(name, mtype, ts.deserialize_cdr(bytes(data), mtype), t)
+                    n += 1
+        except (sqlite3.DatabaseError, ValueError) as e:
+            warnings.append(f"{self.path}: truncated or damaged after {n} messages ({e}); the readable part was used")
 
 
 def pick_topic(topics: dict[str, str], types: tuple[str, ...], what: str, wanted: str | None) -> str | None:

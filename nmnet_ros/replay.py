@@ -294,7 +294,7 @@ def main_live(args: argparse.Namespace, out: McapOutput) -> int:
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
     try:
-        stats = play_live(args.bag, out, args.rate, ["-p", f"max_keypoints:={args.max_keypoints}"])
+        stats = play_live(args.bag, out, args.rate, ["-p", f"max_keypoints:={args.max_keypoints}", "-p", f"detector:={args.detector}"])
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130

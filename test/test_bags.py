@@ -93,6 +93,21 @@ def test_truncated_mcap_reports_and_uses_readable_part(tmp_path):
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"] - 1
 
 
+def test_truncated_db3_reports_and_uses_readable_part(tmp_path):
+    bag = tmp_path / "full"
+    assert make_bag(data_dir("kitti-07"), bag, "sqlite3", compressed=True, frames=range(0, 30)) == 30
+    data = next(bag.glob("*.db3")).read_bytes()
+    cut = tmp_path / "cut.db3"
+    cut.write_bytes(data[: int(len(data) * 0.5)])
+    r = nmnet("replay", str(cut), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress",
+              "--detector", "sift", "--selector", "ratio+magsac")
+    assert r.returncode == 0, r.stderr
+    assert "truncated" in r.stdout + r.stderr
+    s = json.loads((tmp_path / "s.json").read_text())
+    assert 3 <= s["processed"] < 30
+    assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"] - 1
+
+
 def test_bag_without_images_lists_its_topics(tmp_path):
     from rosbags.rosbag2 import StoragePlugin, Writer
 
