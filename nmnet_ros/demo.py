@@ -1,9 +1,10 @@
 """``nmnet demo``: replay the sample bag shipped inside the package (no ../shared needed).
 
 40 frames of KITTI odometry 07 (frames 120-159, never used for training) as
-CompressedImage + CameraInfo + ground-truth PoseStamped. Prints the summary next to the
-classic SIFT + ratio + MAGSAC++ pipeline on the same frames and leaves the output .mcap and the
-plots in one folder.
+CompressedImage + CameraInfo + ground-truth PoseStamped. First live: the bag is played onto
+ROS 2 topics into ``nmnet_node`` (its own process) and the node's outputs are recorded and
+scored; then offline, frame by frame, next to the classic SIFT + ratio + MAGSAC++ pipeline on the
+same frames, with the plots. Everything lands in one folder.
 """
 
 from __future__ import annotations
@@ -20,17 +21,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet demo``."""
     p.add_argument("--out-dir", type=Path, default=Path("nmnet_demo"), help="folder for the output .mcap, summary and plots")
     p.add_argument("--bag", type=Path, default=SAMPLE_BAG, help="bag to replay (default: the bundled sample)")
+    p.add_argument("--rate", type=float, default=0.3,
+                   help="live playback speed (x recorded 10 Hz); 0.3 lets a 2-core machine keep up at 2000 keypoints")
 
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet demo``."""
     out = args.out_dir
     out.mkdir(parents=True, exist_ok=True)
+    parser = argparse.ArgumentParser()
+    replay.add_arguments(parser)  # the demo is exactly these two replay commands
+    live = out / "nmnet_live.mcap"
+    live.unlink(missing_ok=True)
+    print(f"1/2 live: playing {args.bag} at {args.rate}x into nmnet_node -> {live}")
+    rc = replay.main(parser.parse_args([str(args.bag), "--out", str(live), "--json", str(out / "live_summary.json"),
+                                        "--live", "--rate", str(args.rate)]))
+    if rc:
+        return rc
     mcap = out / "nmnet_output.mcap"
     mcap.unlink(missing_ok=True)
-    print(f"replaying {args.bag} (offline) -> {out}/")
-    parser = argparse.ArgumentParser()
-    replay.add_arguments(parser)  # the demo is exactly this replay command
-    ns = parser.parse_args([str(args.bag), "--out", str(mcap), "--json", str(out / "summary.json"), "--plots", str(out),
-                            "--baseline"])
-    return replay.main(ns)
+    print(f"\n2/2 offline, every frame, with the SIFT + ratio + MAGSAC++ baseline -> {out}/")
+    return replay.main(parser.parse_args([str(args.bag), "--out", str(mcap), "--json", str(out / "summary.json"),
+                                          "--plots", str(out), "--baseline"]))
