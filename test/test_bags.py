@@ -144,9 +144,9 @@ def test_missing_bag_and_unknown_format(tmp_path):
 
 def test_sigterm_mid_replay_leaves_valid_output(tmp_path):
     out = tmp_path / "o.mcap"
-    # the faithful detector takes ~1 s per frame here: 40 frames leave a wide window to interrupt in
-    proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out", str(out)], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # the kornia reference detector takes ~1 s per frame here: 40 frames leave a wide window to interrupt in
+    proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out", str(out),
+                             "--detector", "hessian-affine"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(15)
     assert proc.poll() is None, "replay finished before it could be interrupted"
     proc.send_signal(signal.SIGTERM)
