@@ -5,7 +5,9 @@ reference): Hessian-determinant scale space (scale-normalised by sigma^4), 3-D n
 suppression with quadratic refinement, Baumberg affine adaptation, dominant gradient
 orientation and RootSIFT on the normalised patch. What makes it fast is that every per-keypoint
 step runs on all keypoints at once: one ``cv2.remap`` per pyramid level samples every patch,
-and the moments, histograms and descriptors are batched tensor reductions.
+and the moments, histograms and descriptors are batched tensor reductions. The affine step
+samples a smoothed structure tensor (image gradients computed once per level) instead of
+differentiating patches, so a 10 x 10 grid suffices for its weighted sums.
 
 Patch convention (as kornia's ``extract_patches_from_pyramid``): cell (i, j) of a PS x PS patch
 samples ``c + A @ (u_j, u_i)`` with ``u_k = (2k + 1) / PS - 1`` from pyramid level
