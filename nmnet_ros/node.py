@@ -41,8 +41,9 @@ PARAMS: dict[str, tuple] = {
     "score_threshold": (-1.0, "NM-Net inlier probability above which a match is published; -1 = the threshold "
                               "calibrated on validation and stored with the weights", (-1.0, 1.0)),
     "matching": ("nn", "putative matches: nn (paper), mutual, ratio (Lowe 0.8)", ("nn", "mutual", "ratio")),
-    "pose_estimator": ("magsac", "weighted8: eight-point weighted by NM-Net scores; magsac: MAGSAC++ on NM-Net's selection",
-                       ("weighted8", "magsac")),
+    "pose_estimator": ("ratio_magsac", "ratio_magsac: MAGSAC++ on the matches NM-Net and mutual NN + ratio 0.8 both keep; "
+                       "magsac: MAGSAC++ on NM-Net's selection; weighted8: eight-point weighted by NM-Net scores",
+                       ("ratio_magsac", "magsac", "weighted8")),
     "qos": ("sensor_data", "input QoS: sensor_data (best effort, depth 5) or reliable (depth 10)", ("sensor_data", "reliable")),
     "use_compressed": (False, "subscribe image/compressed (sensor_msgs/CompressedImage) instead of image", None),
     "threads": (1, "CPU threads per pipeline stage (torch and OpenCV); detection and the rest run in parallel, "
@@ -54,7 +55,7 @@ PARAMS: dict[str, tuple] = {
     "cy": (0.0, "principal point y (px), see fx", (0.0, 1e5)),
 }
 
-SELECTORS = {"weighted8": "nmnet", "magsac": "nmnet+magsac"}
+SELECTORS = {"weighted8": "nmnet", "magsac": "nmnet+magsac", "ratio_magsac": "nmnet+ratio+magsac"}
 
 
 @dataclass

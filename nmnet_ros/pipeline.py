@@ -21,7 +21,7 @@ from .selectors import Correspondences, build
 DEFAULT_CONFIG: dict = {
     "detector": "hessian-affine-fast",  # or "hessian-affine" (kornia reference), "sift" (similarity frames)
     "max_keypoints": FEATURE_DEFAULTS["max_keypoints"],
-    "selector": "nmnet+magsac",  # any method of nmnet_ros.selectors except 'oracle'
+    "selector": "nmnet+ratio+magsac",  # any method of nmnet_ros.selectors except 'oracle'
     "weights": None,  # NM-Net weights file; None = shipped
     "score_threshold": None,  # None: the threshold calibrated with the weights
     "k": 8,  # compatibility neighbours per correspondence

@@ -234,7 +234,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image-topic", default=None)
     p.add_argument("--info-topic", default=None)
     p.add_argument("--gt-topic", default=None)
-    p.add_argument("--selector", default="nmnet+magsac", help="correspondence selector (see nmnet eval)")
+    p.add_argument("--selector", default="nmnet+ratio+magsac", help="correspondence selector (see nmnet eval)")
     p.add_argument("--detector", default="hessian-affine-fast", choices=sorted(DETECTORS), help="local feature frames")
     p.add_argument("--max-keypoints", type=int, default=2000)
     p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")

@@ -4,7 +4,9 @@
 ``ratio``, ``gms``, ``lpm``: classic filters, pose by the eight-point on what they keep;
 ``ransac``/``magsac``: robust essential-matrix fits on everything; ``ratio+magsac``: mutual NN +
 ratio test then MAGSAC++ (the strongest classic pipeline); ``nmnet+magsac``: MAGSAC++ on the
-network's selection; ``oracle``: ground-truth inliers + MAGSAC++ (the ceiling).
+network's selection; ``nmnet+ratio+magsac``: MAGSAC++ on the matches both NM-Net and mutual NN +
+ratio test keep (the front end's default: best pose AUC@5/10 on validation); ``oracle``:
+ground-truth inliers + MAGSAC++ (the ceiling).
 """
 
 from __future__ import annotations
@@ -107,9 +109,15 @@ def nmnet_select(model: NMNet | FastNMNet, c: Correspondences, cfg: dict) -> Sel
     return Selection(mask, scores, pose)
 
 
-def nmnet_magsac_select(model: NMNet | FastNMNet, c: Correspondences, cfg: dict) -> Selection:
-    """MAGSAC++ on NM-Net's selection; keeps the network's scores for the published matches."""
+def nmnet_magsac_select(model: NMNet | FastNMNet, c: Correspondences, cfg: dict, classic: bool = False) -> Selection:
+    """MAGSAC++ on NM-Net's selection (``classic``: also mutual NN and ratio test); keeps the network's scores.
+
+    The network scores every nearest-neighbour match, as it was trained; the classic test is applied
+    afterwards, so the two filters' rejections add up.
+    """
     _, scores, mask = nmnet_scores(model, c, cfg)
+    if classic:
+        mask = mask & c.mutual & (c.ratio < cfg["ratio"])
     sel = _robust(c, mask, "magsac", cfg)
     return Selection(sel.mask, scores, sel.pose)
 
@@ -169,12 +177,12 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
     """The selector called ``name`` as a function of the correspondences."""
     cfg = {**DEFAULT_CONFIG, **(config or {})}
     weights = weights or {}
-    if name in ("nmnet", "nmnet-sp", "nmnet+magsac"):
+    if name in ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac"):
         variant = "nmnet-sp" if name == "nmnet-sp" else "nmnet"
         model = FastNMNet(load_model(weights.get(variant), variant))  # exact rewrite, ~2x faster on CPU
         model.config["k"] = cfg.get("k", model.config["k"])
-        if name == "nmnet+magsac":
-            return lambda c: nmnet_magsac_select(model, c, cfg)
+        if name in ("nmnet+magsac", "nmnet+ratio+magsac"):
+            return lambda c: nmnet_magsac_select(model, c, cfg, classic=name == "nmnet+ratio+magsac")
         return lambda c: nmnet_select(model, c, cfg)
     table: dict[str, Callable[[Correspondences], Selection]] = {
         "ratio": lambda c: _filtered(c, c.ratio < cfg["ratio"]),
@@ -190,4 +198,5 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
     return table[name]
 
 
-METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ransac", "magsac", "gms", "lpm", "nmnet+magsac", "oracle")
+METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ransac", "magsac", "gms", "lpm", "nmnet+magsac",
+           "nmnet+ratio+magsac", "oracle")

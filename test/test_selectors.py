@@ -1,0 +1,51 @@
+"""Selectors on real pairs: every method runs, NM-Net beats the ratio test as a classifier, the
+combined NM-Net + ratio + MAGSAC++ default keeps only what both filters keep and gets the pose."""
+
+import numpy as np
+import pytest
+
+from nmnet_ros.datasets import Sequence
+from nmnet_ros.geometry import pose_error_deg
+from nmnet_ros.metrics import prf
+from nmnet_ros.model import load_model
+from nmnet_ros.model_fast import FastNMNet
+from nmnet_ros.pairs import make_pair, to_correspondences
+from nmnet_ros.selectors import DEFAULT_CONFIG, METHODS, build, nmnet_scores
+
+from .conftest import data_dir
+
+
+@pytest.fixture(scope="module")
+def pairs(cache):
+    seq = Sequence.load(data_dir("kitti-07"))
+    # validation frames (never trained on), features shared with the geometry test (same cache)
+    return [make_pair(seq, i, i + g, cache) for i in (120, 130, 140, 150) for g in (1, 3, 5)]
+
+
+def test_every_method_runs(pairs):
+    c = to_correspondences(pairs[0])
+    for name in METHODS:
+        sel = build(name)(c)
+        assert sel.mask.shape == (len(c),) and sel.mask.dtype == bool, name
+
+
+def test_nmnet_classifies_better_than_the_ratio_test(pairs):
+    f = {name: np.mean([prf(build(name)(to_correspondences(p)).mask, p.labels)["f1"] for p in pairs])
+         for name in ("nmnet", "ratio")}
+    print(f"mean F over {len(pairs)} KITTI validation pairs: {f}")
+    assert f["nmnet"] > f["ratio"]
+
+
+def test_nmnet_ratio_magsac_keeps_what_both_filters_keep_and_gets_the_pose(pairs):
+    select = build("nmnet+ratio+magsac")
+    model = FastNMNet(load_model())
+    errs = []
+    for p in pairs:
+        c = to_correspondences(p)
+        sel = select(c)
+        _, _, nm = nmnet_scores(model, c, {**DEFAULT_CONFIG})
+        both = nm & c.mutual & (c.ratio < DEFAULT_CONFIG["ratio"])
+        assert sel.mask.sum() >= 8 and not np.any(sel.mask & ~both)
+        errs.append(max(pose_error_deg(sel.pose, p.R, p.t)))
+    print(f"nmnet+ratio+magsac pose errors (deg): {np.round(errs, 2)}")
+    assert np.median(errs) < 1.0
