@@ -204,8 +204,8 @@ class BagReader:
                 self._salvaged = _Db3Salvage(self._db3_file(), e)
                 self.warnings.append(f"{self._db3_file()}: damaged or truncated ({e}); reading what is readable")
                 return self._salvaged.topics
-            raise BagError(f"{self.path}: cannot open bag ({type(e).__name__}: {e}); if it was cut short, "
-                           "re-record it, or convert it to .mcap or .db3, whose readable part can be replayed") from e
+            raise BagError(f"{self.path}: cannot open bag ({type(e).__name__}: {e}); a ROS 1 bag cut short has lost "
+                           "its index: rebuild it with `rosbag reindex` (ROS 1 tools), then replay it") from e
 
     def _db3_file(self) -> Path:
         return sorted(self.path.glob("*.db3"))[0] if self.path.is_dir() else self.path

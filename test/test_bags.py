@@ -108,6 +108,14 @@ def test_truncated_db3_reports_and_uses_readable_part(tmp_path):
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"] - 1
 
 
+def test_truncated_ros1_bag_is_a_clear_error(bags, tmp_path):
+    cut = tmp_path / "cut.bag"
+    data = bags["ros1"].read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(BagError, match="cut.bag: cannot open bag.*rosbag reindex"):
+        BagReader(cut)
+
+
 def test_bag_without_images_lists_its_topics(tmp_path):
     from rosbags.rosbag2 import StoragePlugin, Writer
 
