@@ -147,7 +147,11 @@ def _patch_gradients(g: np.ndarray, frames: np.ndarray) -> tuple[torch.Tensor, t
 
 
 class FastHessianAffine:
-    """Hessian-affine + RootSIFT, batched over keypoints (about 20x the kornia reference's speed)."""
+    """Hessian-affine + RootSIFT, batched over keypoints (10-20x the kornia reference's speed).
+
+    An instance keeps a reusable histogram buffer: call it from one thread at a time (the node's
+    detection stage owns its detector).
+    """
 
     min_size = 32
 
