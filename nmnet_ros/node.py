@@ -1,11 +1,16 @@
 """The ROS 2 node: consecutive camera frames in, selected matches and relative pose out.
 
 Frames land in a one-slot mailbox (the newest wins; overwritten frames are counted as dropped)
-and a worker thread runs the front end, so the executor never blocks on the heavy work.
+and two worker threads run the front end as a pipeline (decode+detect of frame t+1 beside
+match/NM-Net/pose of frame t), so the executor never blocks on the heavy work.
 Run: ``nmnet_node --ros-args -r image:=/cam/image_raw -r camera_info:=/cam/camera_info``.
 """
 
 from __future__ import annotations
+
+# isort: off
+from .one_arena import ENABLED as _ONE_ARENA  # noqa: F401 - first: before any thread allocates
+# isort: on
 
 import re
 import sys

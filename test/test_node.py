@@ -275,7 +275,12 @@ def rss_mb(pid: int) -> float:
 
 
 def test_flood_keeps_latency_bounded(ros, tmp_path):
-    """60 Hz for 5 s into a node that manages ~1 Hz: old frames are dropped, not queued."""
+    """60 Hz for 12 s into a node that manages a few Hz: old frames are dropped, not queued, memory stays flat.
+
+    RSS is compared between medians over 2 s windows after a 4 s warm-up: glibc arenas keep freed
+    buffers of varying size for a while, so single samples swing by ~20 MB; a queue or a per-frame
+    leak of the 0.47 MB frames (~30 received per second) would add well over 100 MB in that time.
+    """
     seq = Sequence.load(data_dir("kitti-07"))
     imgs = [seq.image(i) for i in range(80, 100)]
     node = NodeProcess([], ros, tmp_path / "node.log")
@@ -294,9 +299,9 @@ def test_flood_keeps_latency_bounded(ros, tmp_path):
         t0 = time.monotonic()
         n = 0
         rss = []
-        while time.monotonic() - t0 < 5.0:
+        while time.monotonic() - t0 < 12.0:
             if n % 15 == 0:
-                rss.append(rss_mb(node.proc.pid))
+                rss.append((time.monotonic() - t0, rss_mb(node.proc.pid)))
             stamp = 2.0 + n / 60.0
             peer.pub_img.publish(image_msg(imgs[1 + n % 19], stamp))
             sent[round(stamp, 6)] = time.monotonic()
@@ -312,9 +317,11 @@ def test_flood_keeps_latency_bounded(ros, tmp_path):
     lat = [t - sent[round(s, 6)] for (t, _), s in zip(peer.matches, peer.stamps(peer.matches), strict=True) if round(s, 6) in sent]
     received, dropped = int(vals["frames_received"]), int(vals["frames_dropped"])
     print(f"sent {n}, received {received} (best effort), results {len(lat)}, dropped {dropped}, latency s: {np.round(lat, 2)}, "
-          f"RSS {rss0:.0f} -> {np.round(rss)} -> {rss1:.0f} MB")
-    assert n >= 250 and len(lat) >= 2
+          f"RSS {rss0:.0f} -> {np.round([r for _, r in rss])} -> {rss1:.0f} MB")
+    assert n >= 600 and len(lat) >= 2
     assert dropped >= received - 1 - len(lat) - 1 > 0  # every received frame not processed is counted
     assert max(lat) < 3 * np.median(lat) + 1.0  # bounded: no queue building up
     assert lat[-1] < 3 * lat[0] + 1.0
-    assert rss1 - rss[len(rss) // 2] < 30  # flat memory: after the first few frames nothing accumulates
+    early = np.median([r for t, r in rss if 4.0 <= t < 6.0])
+    late = np.median([r for t, r in rss if t >= 10.0] + [rss1])
+    assert late - early < 30  # flat memory: after warm-up nothing accumulates
