@@ -49,3 +49,31 @@ def test_nmnet_ratio_magsac_keeps_what_both_filters_keep_and_gets_the_pose(pairs
         errs.append(max(pose_error_deg(sel.pose, p.R, p.t)))
     print(f"nmnet+ratio+magsac pose errors (deg): {np.round(errs, 2)}")
     assert np.median(errs) < 1.0
+
+
+def test_score_threshold_trades_recall_for_precision(pairs):
+    from nmnet_ros.evaluate import evaluate
+
+    low, high = (evaluate(pairs, ["nmnet"], config={"score_threshold": t})["metrics"]["nmnet"] for t in (0.3, 0.9))
+    print(f"threshold 0.3: P {low['precision']:.1f} R {low['recall']:.1f}; 0.9: P {high['precision']:.1f} R {high['recall']:.1f}")
+    assert high["recall"] < low["recall"] and high["precision"] > low["precision"]
+
+
+def test_eval_cli_writes_the_json_contract(tmp_path, cache):
+    import json
+    import subprocess
+    import sys
+
+    seq = data_dir("kitti-07")
+    out = tmp_path / "eval.json"
+    cmd = [sys.executable, "-m", "nmnet_ros.cli", "eval", f"{seq}:120-124", "--gaps", "1,2", "--methods", "ratio,nmnet,oracle",
+           "--json", str(out), "--plot", str(tmp_path / "curves.png"), "--cache", str(cache.root)]
+    run = subprocess.run(cmd, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "| nmnet |" in run.stdout and (tmp_path / "curves.png").stat().st_size > 0
+    res = json.loads(out.read_text())
+    keys = {"precision", "recall", "f1", "auc5", "auc10", "auc20", "median_rot_deg", "median_trans_deg", "pairs", "sec_per_pair"}
+    assert set(res) == {"ratio", "nmnet", "oracle"} and all(set(v) == keys for v in res.values())
+    assert res["oracle"]["precision"] == 100.0 and res["nmnet"]["pairs"] == 7  # 4 gap-1 + 3 gap-2 pairs in 120-124
+    bad = subprocess.run(cmd + ["--score-threshold", "1.5"], capture_output=True, text=True)
+    assert bad.returncode != 0 and "--score-threshold must be in [0, 1)" in bad.stderr
