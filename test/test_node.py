@@ -325,3 +325,18 @@ def test_flood_keeps_latency_bounded(ros, tmp_path):
     early = np.median([r for t, r in rss if 4.0 <= t < 6.0])
     late = np.median([r for t, r in rss if t >= 10.0] + [rss1])
     assert late - early < 30  # flat memory: after warm-up nothing accumulates
+
+
+def test_node_module_caps_malloc_arenas_unless_the_user_set_it():
+    """Importing the node limits glibc to one malloc arena (flat RSS); a user's MALLOC_ARENA_MAX wins."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import nmnet_ros.node, nmnet_ros.one_arena as a; print(a.ENABLED)"
+    env = {k: v for k, v in os.environ.items() if k != "MALLOC_ARENA_MAX"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, check=True)
+    assert out.stdout.strip() == "True"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env={**env, "MALLOC_ARENA_MAX": "4"},
+                         cwd=ROOT, check=True)
+    assert out.stdout.strip() == "False"
