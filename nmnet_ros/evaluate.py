@@ -125,13 +125,13 @@ def main(args: argparse.Namespace) -> int:
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise ValueError(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    if args.score_threshold is not None and not 0.0 <= args.score_threshold < 1.0:
+        raise ValueError(f"--score-threshold must be in [0, 1), got {args.score_threshold}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
     pairs = load_eval_pairs(args.seqs, parse_gaps(args.gaps), FeatureCache(make_detector(args.detector), args.cache),
                             args.stride, args.max_pairs)
-    if args.score_threshold is not None and not 0.0 <= args.score_threshold < 1.0:
-        raise ValueError(f"--score-threshold must be in [0, 1), got {args.score_threshold}")
     res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold})
     print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%\n")
     print(markdown_table(res["metrics"]))
