@@ -64,10 +64,9 @@ def _stages(det, model, magsac, cam, imgs: list[np.ndarray], jpegs: list[bytes])
 
     from .matching import match_descriptors
     from .neighbors import compatibility_neighbors
-    from .selectors import Correspondences, nmnet_logits
+    from .selectors import DEFAULT_CONFIG, Correspondences, classic_mask, nmnet_scores
 
     h, w = imgs[0].shape[:2]
-    logit_cut = float(np.log(model.score_threshold / (1 - model.score_threshold)))
     st: dict[str, list[float]] = {k: [] for k in ("decode", "detect", "match", "neighbors", "nmnet", "pose", "total")}
     feats, prev = [], None
     for img, jpg in zip(imgs, jpegs, strict=True):
@@ -86,7 +85,7 @@ def _stages(det, model, magsac, cam, imgs: list[np.ndarray], jpegs: list[bytes])
             t3 = time.perf_counter()
             c = Correspondences(k0, k1, a0, a1, cam.normalize(k0), cam.normalize(k1), m.ratio, m.mutual, cam.focal, (w, h), (w, h))
             # the default pose path (nmnet+ratio+magsac): calibrated NM-Net cut, mutual NN, ratio 0.8, MAGSAC++
-            keep = (nmnet_logits(model, c, nb) > logit_cut) & m.mutual & (m.ratio < 0.8)
+            keep = nmnet_scores(model, c, DEFAULT_CONFIG, nb)[2] & classic_mask(c)
             t4 = time.perf_counter()
             magsac(Correspondences(*(x[keep] for x in (k0, k1, a0, a1, c.x0, c.x1, m.ratio, m.mutual)), cam.focal, (w, h), (w, h)))
             t5 = time.perf_counter()

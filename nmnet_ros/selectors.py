@@ -78,6 +78,11 @@ def _robust(c: Correspondences, keep: np.ndarray, method: str, cfg: dict) -> Sel
     return Selection(mask, None, pose)
 
 
+def classic_mask(c: Correspondences, cfg: dict = DEFAULT_CONFIG) -> np.ndarray:
+    """Mutual nearest neighbour and Lowe's ratio test: the classic pre-filter before MAGSAC++."""
+    return c.mutual & (c.ratio < cfg["ratio"])
+
+
 def nmnet_logits(model: NMNet | FastNMNet, c: Correspondences, neighbors: np.ndarray | None = None) -> np.ndarray:
     """Network logits of every correspondence (neighbours mined as the model was trained, unless given)."""
     if len(c) == 0:
@@ -92,9 +97,10 @@ def nmnet_logits(model: NMNet | FastNMNet, c: Correspondences, neighbors: np.nda
         return model(x[None], nbt[None])[0].numpy()
 
 
-def nmnet_scores(model: NMNet | FastNMNet, c: Correspondences, cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def nmnet_scores(model: NMNet | FastNMNet, c: Correspondences, cfg: dict,
+                 neighbors: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(logits, probabilities, selection mask at the configured or calibrated threshold)."""
-    logits = nmnet_logits(model, c)
+    logits = nmnet_logits(model, c, neighbors)
     scores = 0.5 * (1.0 + np.tanh(0.5 * logits))  # sigmoid without exp overflow
     threshold = cfg["score_threshold"] if cfg["score_threshold"] is not None else model.score_threshold
     return logits, scores, scores > threshold
@@ -117,7 +123,7 @@ def nmnet_magsac_select(model: NMNet | FastNMNet, c: Correspondences, cfg: dict,
     """
     _, scores, mask = nmnet_scores(model, c, cfg)
     if classic:
-        mask = mask & c.mutual & (c.ratio < cfg["ratio"])
+        mask = mask & classic_mask(c, cfg)
     sel = _robust(c, mask, "magsac", cfg)
     return Selection(sel.mask, scores, sel.pose)
 
@@ -188,7 +194,7 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         "ratio": lambda c: _filtered(c, c.ratio < cfg["ratio"]),
         "ransac": lambda c: _robust(c, np.ones(len(c), bool), "ransac", cfg),
         "magsac": lambda c: _robust(c, np.ones(len(c), bool), "magsac", cfg),
-        "ratio+magsac": lambda c: _robust(c, c.mutual & (c.ratio < cfg["ratio"]), "magsac", cfg),
+        "ratio+magsac": lambda c: _robust(c, classic_mask(c, cfg), "magsac", cfg),
         "gms": lambda c: _filtered(c, gms_mask(c)),
         "lpm": lambda c: _filtered(c, lpm_mask(c)),
         "oracle": lambda c: _robust(c, c.labels if c.labels is not None else np.zeros(len(c), bool), "magsac", cfg),
