@@ -74,7 +74,8 @@ class Peer:
             spin_until(self.node, lambda: False, 0.3)
             received, skipped = self.count("frames_received"), self.count("warn_no_camera_info")
             self.pub_img.publish(msg)
-            spin_until(self.node, lambda: self.count("frames_processed") >= 1 or self.count("warn_no_camera_info") > skipped, 4.0)
+            spin_until(self.node, lambda s=skipped: self.count("frames_processed") >= 1 or self.count("warn_no_camera_info") > s,
+                       4.0)
             if self.count("frames_processed") >= 1:
                 return
             if self.count("warn_no_camera_info") > skipped or self.count("frames_received") <= received:
