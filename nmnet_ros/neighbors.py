@@ -9,6 +9,8 @@ s = exp(-lambda (e_j + e_i)); each correspondence is its own first neighbour.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import torch
 
@@ -26,18 +28,19 @@ def local_transforms(k0: np.ndarray, a0: np.ndarray, k1: np.ndarray, a1: np.ndar
     return m, b
 
 
-_WORKSPACE: list[torch.Tensor] = []
+_LOCAL = threading.local()  # one workspace per thread: training mines a batch in parallel threads
 
 
 def _workspace(size: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Two reusable float buffers of at least ``size`` elements.
+    """Two reusable float buffers of at least ``size`` elements, private to the calling thread.
 
     Freshly allocated multi-MB buffers are page-faulted on first touch, which costs more than
     the arithmetic here; keeping them alive between frames removes that.
     """
-    if not _WORKSPACE or _WORKSPACE[0].numel() < size:
-        _WORKSPACE[:] = [torch.empty(size), torch.empty(size)]
-    return _WORKSPACE[0], _WORKSPACE[1]
+    ws = getattr(_LOCAL, "buffers", None)
+    if ws is None or ws[0].numel() < size:
+        ws = _LOCAL.buffers = (torch.empty(size), torch.empty(size))
+    return ws
 
 
 def _check(n: int, k: int, *arrays: np.ndarray) -> int:

@@ -13,6 +13,7 @@ import argparse
 import json
 import subprocess
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +38,8 @@ DEFAULT_CONFIG: dict = {
     "gaps": (1, 2, 3, 4, 5, 6, 7, 8, 9, 10),
     "max_val_pairs": 60,
     "min_inliers": 5,
+    "device": "cpu",  # "cuda" trains on a GPU; neighbours are always mined on the CPU
+    "workers": 1,  # threads preparing a batch (neighbour mining releases the GIL)
 }
 
 NEIGHBORS = {"nmnet": "compatibility", "nmnet-sp": "spatial"}
@@ -87,10 +90,11 @@ def validate(model: NMNet, pairs: list[PairData], neighbor_kind: str, threshold:
     operating point: the balanced loss centres the scores for recall, not for F.
     """
     model.eval()
+    dev = next(model.parameters()).device
     probs = []
     for p in pairs:
         x, nb = network_input(p, neighbor_kind, model.config["k"])
-        probs.append(torch.sigmoid(model(x, nb)[0]).numpy())
+        probs.append(torch.sigmoid(model(x.to(dev), nb.to(dev))[0]).cpu().numpy())
     stats = [prf(pr > threshold, p.labels) for pr, p in zip(probs, pairs, strict=True)]
     out = {k: float(np.mean([s[k] for s in stats])) for k in ("precision", "recall", "f1")}
     out["f1_by_threshold"] = {t: float(np.mean([prf(pr > t, p.labels)["f1"] for pr, p in zip(probs, pairs, strict=True)]))
@@ -140,7 +144,8 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     if len(val_pairs) > c["max_val_pairs"]:
         val_pairs = [val_pairs[i] for i in np.linspace(0, len(val_pairs) - 1, c["max_val_pairs"]).round().astype(int)]
 
-    model = NMNet({"neighbors": kind})
+    device = torch.device(c["device"])
+    model = NMNet({"neighbors": kind}).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=c["lr"])
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -155,23 +160,21 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         start_epoch, best_f, history = ck["epoch"] + 1, ck["best_f"], ck["history"]
         log(f"resumed after epoch {ck['epoch']}, best val F {best_f:.2f}")
 
+    pool = ThreadPoolExecutor(max(1, c["workers"]))
     t_start = time.time()
     for epoch in range(start_epoch, c["epochs"]):
         model.train()
         losses = []
         t0 = time.time()
         for _ in range(c["steps_per_epoch"]):
-            xs, nbs, ys = [], [], []
+            batch = []  # drawn in order from the seeded generator, whatever the number of workers
             for pi in rng.integers(len(train_pairs), size=c["batch"]):
-                p = train_pairs[pi]
-                n = len(p.labels)
-                sel = rng.choice(n, size=c["num_corr"], replace=n < c["num_corr"])
-                x, nb = network_input(p, kind, model.config["k"], sel)
-                xs.append(x)
-                nbs.append(nb)
-                ys.append(torch.from_numpy(p.labels[sel].astype(np.float32))[None])
-            logits = model(torch.cat(xs), torch.cat(nbs))
-            loss = balanced_bce(logits, torch.cat(ys))
+                n = len(train_pairs[pi].labels)
+                batch.append((train_pairs[pi], rng.choice(n, size=c["num_corr"], replace=n < c["num_corr"])))
+            inputs = list(pool.map(lambda b: network_input(b[0], kind, model.config["k"], b[1]), batch))
+            ys = [torch.from_numpy(p.labels[sel].astype(np.float32))[None] for p, sel in batch]
+            logits = model(torch.cat([x for x, _ in inputs]).to(device), torch.cat([nb for _, nb in inputs]).to(device))
+            loss = balanced_bce(logits, torch.cat(ys).to(device))
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -185,13 +188,15 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
             f"R {val['recall']:.1f} F {val['f1']:.1f}  ({rec['epoch_sec']:.0f}s)")
         meta = {"config": model.config, "train_config": {k: list(v) if isinstance(v, tuple) else v for k, v in c.items()},
                 "train": train_specs, "val": val_specs, "commit": _git_commit()}
+        state = {k: v.cpu() for k, v in model.state_dict().items()}  # loadable without a GPU
         if val["f1"] > best_f:
             best_f = val["f1"]
-            torch.save({"state_dict": model.state_dict(), **meta, "epoch": epoch, "val": val}, out_dir / "best.pt")
-        torch.save({"state_dict": model.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch,
+            torch.save({"state_dict": state, **meta, "epoch": epoch, "val": val}, out_dir / "best.pt")
+        torch.save({"state_dict": state, "optimizer": opt.state_dict(), "epoch": epoch,
                     "best_f": best_f, "history": history, "rng": rng.bit_generator.state,
                     "torch_rng": torch.get_rng_state()}, out_dir / "last.pt")
         (out_dir / "history.json").write_text(json.dumps(history, indent=1))
+    pool.shutdown()
     summary = {"best_val_f1_at_0.5": best_f, "train_pairs": len(train_pairs), "val_pairs": len(val_pairs),
                "train_minutes": (time.time() - t_start) / 60, "epochs": c["epochs"], **calibrate(out_dir, val_pairs, kind, log)}
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
@@ -207,6 +212,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     for key in ("epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs"):
         p.add_argument("--" + key.replace("_", "-"), type=int, default=DEFAULT_CONFIG[key])
     p.add_argument("--lr", type=float, default=DEFAULT_CONFIG["lr"])
+    p.add_argument("--device", default=DEFAULT_CONFIG["device"], help="torch device for the network, e.g. cpu or cuda")
+    p.add_argument("--workers", type=int, default=DEFAULT_CONFIG["workers"], help="threads mining neighbours for a batch")
     p.add_argument("--gaps", default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder (default ~/.cache/nmnet_ros)")
@@ -222,7 +229,8 @@ def parse_gaps(text: str) -> tuple[int, ...]:
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet train``."""
-    cfg = {k: getattr(args, k) for k in ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr")}
+    keys = ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr", "device", "workers")
+    cfg = {k: getattr(args, k) for k in keys}
     cfg["gaps"] = parse_gaps(args.gaps)
     summary = train(args.train, args.val, args.out, cfg, resume=args.resume, cache_dir=args.cache)
     print(json.dumps(summary, indent=1))

@@ -1,5 +1,7 @@
 """NM-Net network: size, order-insensitivity, determinism, sizes, bad weights."""
 
+import copy
+
 import numpy as np
 import pytest
 import torch
@@ -66,14 +68,24 @@ def test_bad_weight_files_name_the_file(tmp_path):
 @pytest.mark.parametrize("variant", ["nmnet", "nmnet-sp"])
 @pytest.mark.parametrize("n,k", [(2000, 8), (37, 8), (500, 4), (300, 1)])
 def test_fast_model_logits_equal_the_reference(variant, n, k):
-    """The inference rewrite (GEMM convolutions, folded BatchNorm) is exact: logits agree to 1e-4."""
+    """The inference rewrite (GEMM convolutions, folded BatchNorm) is exact.
+
+    In float64 the logits agree to 1e-9 (a wrong rewrite shows at 1e-3 and above). In float32,
+    the shipped path, rounding accumulates over the 17 normalised layers in proportion to the
+    activations' size (logits reach ~40): the fast logits are within 1e-4 + 1e-5 * max|logit|
+    of the float64 truth. A bare 1e-4 in float32 failed on an AMD EPYC CPU (1.9e-4 at N=2000,
+    growing ~1e-5 of the activation scale per block) while the float64 check held to 5e-13.
+    """
     from nmnet_ros.model_fast import FastNMNet
 
     model = load_model(variant=variant)
     x, k0, a0, k1, a1 = inputs(n, seed=n + k)
     nb = torch.from_numpy(compatibility_neighbors(k0, a0, k1, a1, k=k))
+    model64 = copy.deepcopy(model).double()
     with torch.inference_mode():
         ref = model(x[None], nb[None])[0]
+        ref64 = model64(x.double()[None], nb[None])[0]
+    torch.testing.assert_close(FastNMNet(model64)(x.double(), nb), ref64, atol=1e-9, rtol=0)
     fast = FastNMNet(model)(x, nb)
-    assert fast.shape == ref.shape and ref.abs().max() > 1  # real, non-trivial logits
-    torch.testing.assert_close(fast, ref, atol=1e-4, rtol=0)
+    assert fast.dtype == torch.float32 and fast.shape == ref.shape and ref.abs().max() > 1  # real, non-trivial logits
+    torch.testing.assert_close(fast.double(), ref64, atol=1e-4 + 1e-5 * ref64.abs().max().item(), rtol=0)

@@ -30,6 +30,19 @@ def test_vectorised_equals_literal_formula(n):
     np.testing.assert_array_equal(fast, ref)
 
 
+def test_threads_mine_concurrently_without_sharing_buffers():
+    """Training mines a batch in parallel threads: each thread needs its own workspace."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    sets = [random_corr(700, seed=s) for s in range(8)]
+    expected = [compatibility_neighbors(*c) for c in sets]
+    with ThreadPoolExecutor(4) as pool:
+        for _ in range(3):
+            got = list(pool.map(lambda c: compatibility_neighbors(*c), sets))
+            for g, e in zip(got, expected, strict=True):
+                np.testing.assert_array_equal(g, e)
+
+
 def test_consistent_group_are_each_others_neighbours():
     # 20 correspondences from one affine map + 200 random ones: the 20 pick each other.
     rng = np.random.default_rng(3)

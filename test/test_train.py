@@ -20,7 +20,8 @@ def test_balanced_bce_weights_positives():
 
 def test_train_few_steps_then_resume(tmp_path):
     seq = str(data_dir("strecha-fountain-p11"))
-    cfg = {"epochs": 1, "steps_per_epoch": 2, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1}
+    cfg = {"epochs": 1, "steps_per_epoch": 2, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1,
+           "workers": 2}  # the batch is mined in two threads
     spec_train, spec_val = [f"{seq}:0-1"], [f"{seq}:2-3"]  # one pair each
     s = train(spec_train, spec_val, tmp_path, cfg, cache_dir=tmp_path / "cache")
     assert s["train_pairs"] == 1 and s["val_pairs"] == 1
