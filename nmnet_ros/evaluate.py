@@ -20,6 +20,7 @@ from .detectors import DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, to_correspondences
+from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, build
 from .train import parse_gaps
 
@@ -115,6 +116,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", type=Path, default=Path("eval_curves.png"), help="recall-vs-error plot (PNG)")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
     p.add_argument("--detector", default="hessian-affine", choices=sorted(DETECTORS), help="local feature frames")
+    p.add_argument("--threshold-px", type=float, default=SELECTOR_DEFAULTS["threshold_px"],
+                   help="MAGSAC++/RANSAC inlier threshold in pixels for every robust method")
     p.add_argument("--score-threshold", type=float, default=None,
                    help="NM-Net probability cut for every nmnet method (default: the one calibrated with the weights)")
 
@@ -127,12 +130,14 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
     if args.score_threshold is not None and not 0.0 <= args.score_threshold < 1.0:
         raise ValueError(f"--score-threshold must be in [0, 1), got {args.score_threshold}")
+    if not args.threshold_px > 0:
+        raise ValueError(f"--threshold-px must be > 0, got {args.threshold_px}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
     pairs = load_eval_pairs(args.seqs, parse_gaps(args.gaps), FeatureCache(make_detector(args.detector), args.cache),
                             args.stride, args.max_pairs)
-    res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold})
+    res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px})
     print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%\n")
     print(markdown_table(res["metrics"]))
     plot_curves(res["errors"], args.plot)

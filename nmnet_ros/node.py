@@ -35,6 +35,7 @@ from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
 from .pipeline import FrameResult, Frontend
 from .posemsg import relative_pose_of_current
+from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 
 PARAMS: dict[str, tuple] = {
     # name: (default, description, range or choices)
@@ -49,6 +50,8 @@ PARAMS: dict[str, tuple] = {
     "pose_estimator": ("ratio_magsac", "ratio_magsac: MAGSAC++ on the matches NM-Net and mutual NN + ratio 0.8 both keep; "
                        "magsac: MAGSAC++ on NM-Net's selection; weighted8: eight-point weighted by NM-Net scores",
                        ("ratio_magsac", "magsac", "weighted8")),
+    "pose_threshold_px": (SELECTOR_DEFAULTS["threshold_px"], "MAGSAC++ inlier threshold in pixels (chosen on training "
+                          "pairs; raise it for a poorly calibrated or rolling-shutter camera)", (0.05, 10.0)),
     "qos": ("sensor_data", "input QoS: sensor_data (best effort, depth 5) or reliable (depth 10)", ("sensor_data", "reliable")),
     "use_compressed": (False, "subscribe image/compressed (sensor_msgs/CompressedImage) instead of image", None),
     "threads": (1, "CPU threads per pipeline stage (torch and OpenCV); detection and the rest run in parallel, "
@@ -120,6 +123,7 @@ class NMNetNode(Node):
             "detector": p["detector"], "max_keypoints": p["max_keypoints"], "selector": SELECTORS[p["pose_estimator"]],
             "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
             "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
+            "threshold_px": p["pose_threshold_px"],
         })
         if p["fx"] > 0 and p["fy"] > 0:
             self.frontend.camera = Camera(np.array([[p["fx"], 0, p["cx"]], [0, p["fy"], p["cy"]], [0, 0, 1.0]]))

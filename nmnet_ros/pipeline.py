@@ -16,6 +16,7 @@ from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Features
 from .geometry import Camera, PoseEstimate
 from .matching import match_descriptors
+from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, build
 
 DEFAULT_CONFIG: dict = {
@@ -25,6 +26,7 @@ DEFAULT_CONFIG: dict = {
     "weights": None,  # NM-Net weights file; None = shipped
     "score_threshold": None,  # None: the threshold calibrated with the weights
     "k": 8,  # compatibility neighbours per correspondence
+    "threshold_px": SELECTOR_DEFAULTS["threshold_px"],  # MAGSAC++ inlier threshold, pixels
     "ratio": None,  # optional ratio test on the putative matches (the paper uses none)
     "mutual": False,
     "min_matches": 8,
@@ -60,7 +62,8 @@ class Frontend:
         self.camera = camera
         self.detector = make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]})
         weights = {"nmnet": c["weights"]} if c["weights"] else None
-        self.select = build(c["selector"], {"score_threshold": c["score_threshold"], "k": c["k"]}, weights)
+        self.select = build(c["selector"], {"score_threshold": c["score_threshold"], "k": c["k"], "threshold_px": c["threshold_px"]},
+                            weights)
         self.prev: tuple[float, Features, tuple[int, int]] | None = None
 
     def reset(self) -> None:

@@ -51,6 +51,14 @@ def test_nmnet_ratio_magsac_keeps_what_both_filters_keep_and_gets_the_pose(pairs
     assert np.median(errs) < 1.0
 
 
+def test_pixel_threshold_reaches_the_robust_estimator(pairs):
+    """A looser MAGSAC++ threshold keeps more matches on the same putative set (and the config key is honoured)."""
+    c = to_correspondences(pairs[0])
+    tight, loose = (int(build("magsac", {"threshold_px": t})(c).mask.sum()) for t in (0.1, 3.0))
+    print(f"MAGSAC++ inliers at 0.1 px: {tight}, at 3 px: {loose}")
+    assert 8 <= tight < loose
+
+
 def test_score_threshold_trades_recall_for_precision(pairs):
     from nmnet_ros.evaluate import evaluate
 
@@ -77,3 +85,5 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     assert res["oracle"]["precision"] == 100.0 and res["nmnet"]["pairs"] == 7  # 4 gap-1 + 3 gap-2 pairs in 120-124
     bad = subprocess.run(cmd + ["--score-threshold", "1.5"], capture_output=True, text=True)
     assert bad.returncode != 0 and "--score-threshold must be in [0, 1)" in bad.stderr
+    bad = subprocess.run(cmd + ["--threshold-px", "0"], capture_output=True, text=True)
+    assert bad.returncode != 0 and "--threshold-px must be > 0" in bad.stderr
