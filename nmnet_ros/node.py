@@ -48,8 +48,9 @@ PARAMS: dict[str, tuple] = {
                               "calibrated on validation and stored with the weights", (-1.0, 1.0)),
     "matching": ("nn", "putative matches: nn (paper), mutual, ratio (Lowe 0.8)", ("nn", "mutual", "ratio")),
     "pose_estimator": ("ratio_magsac", "ratio_magsac: MAGSAC++ on the matches NM-Net and mutual NN + ratio 0.8 both keep; "
-                       "magsac: MAGSAC++ on NM-Net's selection; weighted8: eight-point weighted by NM-Net scores",
-                       ("ratio_magsac", "magsac", "weighted8")),
+                       "magsac: MAGSAC++ on NM-Net's selection; weighted8: eight-point weighted by NM-Net scores; "
+                       "classic: mutual NN + ratio 0.8 + MAGSAC++ without the network",
+                       ("ratio_magsac", "magsac", "weighted8", "classic")),
     "pose_threshold_px": (SELECTOR_DEFAULTS["threshold_px"], "MAGSAC++ inlier threshold in pixels (chosen on training "
                           "pairs; raise it for a poorly calibrated or rolling-shutter camera)", (0.05, 10.0)),
     "qos": ("sensor_data", "input QoS: sensor_data (best effort, depth 5) or reliable (depth 10)", ("sensor_data", "reliable")),
@@ -63,7 +64,7 @@ PARAMS: dict[str, tuple] = {
     "cy": (0.0, "principal point y (px), see fx", (0.0, 1e5)),
 }
 
-SELECTORS = {"weighted8": "nmnet", "magsac": "nmnet+magsac", "ratio_magsac": "nmnet+ratio+magsac"}
+SELECTORS = {"weighted8": "nmnet", "magsac": "nmnet+magsac", "ratio_magsac": "nmnet+ratio+magsac", "classic": "ratio+magsac"}
 
 
 @dataclass

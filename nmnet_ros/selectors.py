@@ -24,7 +24,7 @@ from .model_fast import FastNMNet
 from .neighbors import mine_neighbors
 
 DEFAULT_CONFIG: dict = {
-    "threshold_px": 1.0,  # robust-estimator inlier threshold, pixels
+    "threshold_px": 0.15,  # robust-estimator inlier threshold, pixels (best pose AUC on training pairs; see README)
     "ratio": 0.8,
     "score_threshold": None,  # NM-Net probability above which a match is selected; None = calibrated with the weights
 }

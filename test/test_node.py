@@ -124,7 +124,7 @@ def send_lockstep(peer: Peer, seq: Sequence, frames, make_msg, info) -> None:
         assert peer.wait_result_for(stamp), f"no result for frame {i}"
 
 
-def check_kitti_run(peer: Peer, seq: Sequence, frames) -> None:
+def check_kitti_run(peer: Peer, seq: Sequence, frames, network: bool = True) -> None:
     spin_until(peer.node, lambda: len(peer.poses) >= len(frames) - 1, 5.0)  # the pose follows the matches
     assert len(peer.matches) == len(frames) - 1 and len(peer.poses) == len(frames) - 1
     errs = []
@@ -138,7 +138,10 @@ def check_kitti_run(peer: Peer, seq: Sequence, frames) -> None:
     m = peer.matches[-1][1]
     assert [f.name for f in m.fields] == ["u0", "v0", "u1", "v1", "score"] and m.width > 50
     scores = np.frombuffer(bytes(m.data), np.float32).reshape(-1, 5)[:, 4]
-    assert scores.min() > 0.5 and scores.max() <= 1.0 and len(np.unique(scores)) > 1  # NM-Net probabilities, not a 0/1 mask
+    if network:
+        assert scores.min() > 0.5 and scores.max() <= 1.0 and len(np.unique(scores)) > 1  # NM-Net probabilities, not a 0/1 mask
+    else:
+        assert np.all(scores == 1.0)  # no network: the published score is the selection itself
 
 
 def kitti_info(seq: Sequence):
@@ -147,7 +150,9 @@ def kitti_info(seq: Sequence):
 
 RAW = (["--params-file", str(ROOT / "config" / "nmnet.yaml"), "-r", "image:=/cam/image_raw", "-r", "camera_info:=/cam/camera_info"],
        {"image_topic": "/cam/image_raw", "info_topic": "/cam/camera_info"}, image_msg, range(40, 60), signal.SIGTERM)
-COMPRESSED = (["-p", "use_compressed:=true"], {"compressed": True}, compressed_msg, range(100, 120), signal.SIGINT)
+# the compressed run also exercises the network-free pose_estimator
+COMPRESSED = (["-p", "use_compressed:=true", "-p", "pose_estimator:=classic"], {"compressed": True}, compressed_msg, range(100, 120),
+              signal.SIGINT)
 
 
 @pytest.mark.parametrize("node_args, peer_args, make_msg, frames, stop_signal", [RAW, COMPRESSED], ids=["raw-remapped", "compressed"])
@@ -159,7 +164,7 @@ def test_twenty_kitti_frames(ros, tmp_path, node_args, peer_args, make_msg, fram
     try:
         peer.wait_connected()
         send_lockstep(peer, seq, list(frames), make_msg, kitti_info(seq))
-        check_kitti_run(peer, seq, list(frames))
+        check_kitti_run(peer, seq, list(frames), network="pose_estimator:=classic" not in node_args)
     finally:
         peer.close()
         assert node.stop(stop_signal) == 0, node.output()
