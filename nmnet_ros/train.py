@@ -132,6 +132,8 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     if c["variant"] not in NEIGHBORS:
         raise ValueError(f"unknown variant {c['variant']!r}; use one of {sorted(NEIGHBORS)}")
     kind = NEIGHBORS[c["variant"]]
+    if str(c["device"]).startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"--device {c['device']}: torch {torch.__version__} sees no CUDA GPU here; use --device cpu")
     torch.manual_seed(c["seed"])
     rng = np.random.default_rng(c["seed"])
     cache = FeatureCache(HessianAffine(), cache_dir)

@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 import torch
 
 from nmnet_ros.model import load_model
@@ -16,6 +17,14 @@ def test_balanced_bce_weights_positives():
     labels = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
     # weight 3 on the one positive: mean of (3 + 1 + 1 + 1) * log 2 over 4
     assert balanced_bce(logits, labels).item() == np.float32(6 / 4 * np.log(2))
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the message on a machine without a GPU")
+def test_cuda_without_a_gpu_is_a_clear_error(tmp_path):
+    seq = str(data_dir("strecha-fountain-p11"))
+    with pytest.raises(ValueError, match="no CUDA GPU.*--device cpu"):
+        train([seq], [seq], tmp_path, {"device": "cuda"}, cache_dir=tmp_path / "cache")
+    assert not any(tmp_path.iterdir())  # refused before any work
 
 
 def test_train_few_steps_then_resume(tmp_path):
