@@ -25,6 +25,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
@@ -341,8 +342,8 @@ def main(args: list[str] | None = None) -> int:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ValueError as e:
-        print(f"nmnet_node: error: {e}", file=sys.stderr)
+    except (ValueError, ParameterException) as e:  # rclpy checks types and ranges when the node declares them
+        print(f"nmnet_node: error: {e} (parameters, types and ranges: README or `ros2 param describe`)", file=sys.stderr)
         return 2
     finally:
         if node is not None:

@@ -294,11 +294,14 @@ def test_parameters_from_yaml_and_command_line(ros, tmp_path):
         node.stop()
 
 
-def test_invalid_parameter_is_a_clear_error(ros, tmp_path):
-    node = NodeProcess(["--ros-args", "-p", "matching:=fancy"], ros, tmp_path / "node.log")
+@pytest.mark.parametrize("name, value", [("matching", "fancy"), ("pose_threshold_px", "0.0"), ("max_keypoints", "lots")],
+                         ids=["choice", "range", "type"])
+def test_invalid_parameter_is_a_clear_error(ros, tmp_path, name, value):
+    node = NodeProcess(["--ros-args", "-p", f"{name}:={value}"], ros, tmp_path / "node.log")
     assert node.proc.wait(60) == 2
     node.stop()
-    assert "matching" in node.output() and "fancy" in node.output()
+    out = node.output()
+    assert "nmnet_node: error:" in out and name in out and value in out and "Traceback" not in out
 
 
 def rss_mb(pid: int) -> float:

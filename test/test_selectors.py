@@ -59,6 +59,22 @@ def test_pixel_threshold_reaches_the_robust_estimator(pairs):
     assert 8 <= tight < loose
 
 
+def test_frontend_passes_its_pixel_threshold_to_the_selector():
+    """The node's pose_threshold_px goes through Frontend's threshold_px: same frames, looser -> more inliers."""
+    from nmnet_ros.pipeline import Frontend
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    selected = []
+    for t in (0.1, 3.0):
+        fe = Frontend(seq.camera, {"selector": "ratio+magsac", "threshold_px": t})
+        fe.process(seq.image(10), 0.0)
+        r = fe.process(seq.image(11), 0.1)
+        assert r.status == "ok"
+        selected.append(r.num_selected)
+    print(f"selected at 0.1 px / 3 px: {selected}")
+    assert 8 <= selected[0] < selected[1]
+
+
 def test_score_threshold_trades_recall_for_precision(pairs):
     from nmnet_ros.evaluate import evaluate
 
