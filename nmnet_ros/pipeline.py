@@ -16,6 +16,7 @@ from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Features
 from .geometry import Camera, PoseEstimate
 from .matching import match_descriptors
+from .neighbors import warm_up
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, build
 
@@ -65,6 +66,8 @@ class Frontend:
         self.select = build(c["selector"], {"score_threshold": c["score_threshold"], "k": c["k"], "threshold_px": c["threshold_px"]},
                             weights)
         self.prev: tuple[float, Features, tuple[int, int]] | None = None
+        if c["selector"].startswith("nmnet"):
+            warm_up()  # the neighbour kernel's compile/load would otherwise land on the second frame
 
     def reset(self) -> None:
         """Forget the previous frame (the next frame starts a new chain)."""

@@ -31,7 +31,8 @@ def test_vectorised_equals_literal_formula(n):
 
 
 def test_threads_mine_concurrently_without_sharing_buffers():
-    """Training mines a batch in parallel threads: each thread needs its own workspace."""
+    """Training mines a batch in parallel threads: concurrent calls must neither crash numba's
+    thread pool nor mix up results."""
     from concurrent.futures import ThreadPoolExecutor
 
     sets = [random_corr(700, seed=s) for s in range(8)]
@@ -41,6 +42,24 @@ def test_threads_mine_concurrently_without_sharing_buffers():
             got = list(pool.map(lambda c: compatibility_neighbors(*c), sets))
             for g, e in zip(got, expected, strict=True):
                 np.testing.assert_array_equal(g, e)
+
+
+def test_mining_keeps_the_callers_torch_thread_count():
+    """numba's OpenMP pool shares torch's runtime: starting it must not undo torch.set_num_threads
+    (the node budgets one thread per pipeline stage). A fresh process, so the pool starts here."""
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np, torch\n"
+        "from nmnet_ros.neighbors import compatibility_neighbors\n"
+        "torch.set_num_threads(1)\n"
+        "r = np.random.default_rng(0); a = np.tile(np.eye(2), (50, 1, 1))\n"
+        "compatibility_neighbors(r.normal(size=(50, 2)), a, r.normal(size=(50, 2)), a)\n"
+        "print(torch.get_num_threads())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split()[-1] == "1"
 
 
 def test_consistent_group_are_each_others_neighbours():
