@@ -1,8 +1,9 @@
 """NM-Net inference by exact rewrites of :class:`nmnet_ros.model.NMNet` (same logits to float rounding).
 
-- Features live as one (N*k, C) matrix, so every convolution is a single GEMM: a (1,3) convolution
-  along the neighbour axis is ``[x_{j-1}, x_j, x_{j+1}] @ W`` (zero padded, every second j for
-  stride 2); at width 1 only the centre tap meets data, so it is ``x @ W_centre``.
+- Features live as one (N*k, C) matrix, so a convolution is a few GEMMs: a (1,3) convolution
+  along the neighbour axis is ``x_{j-1} @ W_0 + x_j @ W_1 + x_{j+1} @ W_2`` (zero padded, every
+  second j for stride 2), each tap only over the positions that meet data; at width 1 only the
+  centre tap does, so it is ``x @ W_centre``.
 - A convolution bias followed by InstanceNorm cancels (IN subtracts the channel mean): dropped.
 - Eval-mode BatchNorm after InstanceNorm is a per-channel affine map: folded into the
   normalisation's scale and shift, so IN+BN+ReLU is one mean/var pass and one fused multiply-add.
@@ -39,20 +40,29 @@ def _conv_weight(conv: torch.nn.Conv2d) -> torch.Tensor:
     return conv.weight.detach()[:, :, 0, :].permute(2, 1, 0).contiguous()
 
 
+def _rows(v: torch.Tensor, j: slice) -> torch.Tensor:
+    """Neighbour positions ``j`` of every correspondence of v (n, k, C) as one (n*len(j), C) matrix."""
+    return v[:, j].reshape(-1, v.shape[2])
+
+
 def _conv13(x: torch.Tensor, w: torch.Tensor, n: int, k: int, stride: int) -> torch.Tensor:
-    """(1,3) convolution along the neighbour axis, zero padded: (n*k, C) -> (n*k_out, C_out), three GEMMs."""
+    """(1,3) convolution along the neighbour axis, zero padded: (n*k, C) -> (n*k_out, C_out).
+
+    One GEMM per tap, each over only the input positions that meet data (a side tap skips one
+    position in k: a third of the work at k=2), on contiguous row blocks.
+    """
     if k == 1:  # only the centre tap meets data
         return x @ w[1]
     v = x.view(n, k, -1)
     if stride == 1:
         y = (x @ w[1]).view(n, k, -1)
-        y[:, 1:] += (x @ w[0]).view(n, k, -1)[:, :-1]
-        y[:, :-1] += (x @ w[2]).view(n, k, -1)[:, 1:]
+        y[:, 1:] += (_rows(v, slice(None, -1)) @ w[0]).view(n, k - 1, -1)  # output j reads input j-1
+        y[:, :-1] += (_rows(v, slice(1, None)) @ w[2]).view(n, k - 1, -1)  # and j+1
     else:  # output j reads inputs 2j-1, 2j, 2j+1 (k even)
-        even, odd = v[:, 0::2], v[:, 1::2]
-        y = even @ w[1]
-        y += odd @ w[2]
-        y[:, 1:] += (odd[:, :-1] @ w[0])
+        ko = k // 2
+        y = (_rows(v, slice(0, None, 2)) @ w[1]).addmm_(_rows(v, slice(1, None, 2)), w[2]).view(n, ko, -1)
+        if ko > 1:
+            y[:, 1:] += (_rows(v, slice(1, -1, 2)) @ w[0]).view(n, ko - 1, -1)
     return y.reshape(-1, w.shape[2])
 
 
