@@ -6,13 +6,17 @@
   centre tap does, so it is ``x @ W_centre``.
 - A convolution bias followed by InstanceNorm cancels (IN subtracts the channel mean): dropped.
 - Eval-mode BatchNorm after InstanceNorm is a per-channel affine map: folded into the
-  normalisation's scale and shift, so IN+BN+ReLU is one mean/var pass and one fused multiply-add.
+  normalisation's scale and shift, so IN+BN(+residual)+ReLU is one compiled kernel: a moments
+  pass and one fused multiply-add pass over the activations.
 """
 
 from __future__ import annotations
 
+import numba
+import numpy as np
 import torch
 
+from .jit import launch
 from .model import NMNet, ResBlock
 
 Norm = tuple[torch.Tensor, torch.Tensor, float]  # BN scale, BN shift, IN eps
@@ -25,14 +29,48 @@ def _fold_norm(seq: torch.nn.Sequential) -> Norm:
     return a.detach().clone(), (bn.bias - bn.running_mean * a).detach().clone(), float(inorm.eps)
 
 
-def _norm(x: torch.Tensor, norm: Norm, relu: bool) -> torch.Tensor:
-    """InstanceNorm over the rows (all correspondences and neighbours) + folded BatchNorm (+ ReLU)."""
+@numba.njit(parallel=True, cache=True, boundscheck=False)
+def _norm_kernel(x, a, b, eps, res, relu):  # pragma: no cover - compiled
+    """In place: x = [relu]((x - mean) * a / sqrt(var + eps) + b [+ res]), moments per column.
+
+    Moments in one read pass with float64 sums (no cancellation for float32 data), then one
+    read-write pass: two sweeps over x where separate torch ops need six.
+    """
+    rows, cols = x.shape
+    tasks = min(rows, 64)
+    part = np.zeros((tasks, 2, cols))
+    for t in numba.prange(tasks):
+        for r in range(t * rows // tasks, (t + 1) * rows // tasks):
+            for c in range(cols):
+                v = np.float64(x[r, c])
+                part[t, 0, c] += v
+                part[t, 1, c] += v * v
+    mean = np.empty(cols, x.dtype)
+    scale = np.empty(cols, x.dtype)
+    for c in range(cols):
+        m = part[:, 0, c].sum() / rows
+        var = max(part[:, 1, c].sum() / rows - m * m, 0.0)
+        mean[c] = m
+        scale[c] = a[c] / np.sqrt(var + eps)
+    for t in numba.prange(tasks):
+        for r in range(t * rows // tasks, (t + 1) * rows // tasks):
+            for c in range(cols):
+                v = (x[r, c] - mean[c]) * scale[c] + b[c]
+                if res.shape[0]:
+                    v += res[r, c]
+                x[r, c] = v if v > 0 or not relu else 0.0
+
+
+_NO_RES = np.zeros((0, 0), np.float32)
+
+
+def _norm(x: torch.Tensor, norm: Norm, relu: bool, residual: torch.Tensor | None = None) -> torch.Tensor:
+    """InstanceNorm over the rows (all correspondences and neighbours) + folded BatchNorm
+    (+ residual) (+ ReLU), in place on x (a fresh GEMM output)."""
     a, b, eps = norm
-    ones = torch.full((1, x.shape[0]), 1.0 / x.shape[0], dtype=x.dtype)
-    xc = x - (ones @ x)  # column moments as GEMVs: far faster than a strided reduction
-    var = (ones @ (xc * xc))[0]
-    y = torch.addcmul(b, xc, a * torch.rsqrt(var + eps))
-    return y.relu_() if relu else y
+    res = residual.contiguous().numpy() if residual is not None else _NO_RES
+    launch(_norm_kernel, x.numpy(), a.numpy(), b.numpy(), eps, res, relu)
+    return x
 
 
 def _conv_weight(conv: torch.nn.Conv2d) -> torch.Tensor:
@@ -78,13 +116,12 @@ class _Block:
     def __call__(self, x: torch.Tensor, n: int, k: int) -> tuple[torch.Tensor, int]:
         k_out = (k - 1) // self.stride + 1
         y = _norm(_conv13(x, self.w1, n, k, self.stride), self.n1, relu=True)
-        y = _norm(_conv13(y, self.w2, n, k_out, 1), self.n2, relu=False)
         if self.ws is None:
             s = x
         else:
             xs = x if self.stride == 1 else x.view(n, k, -1)[:, ::self.stride].reshape(n * k_out, -1)
             s = torch.addmm(self.bs, xs, self.ws)
-        return y.add_(s).relu_(), k_out
+        return _norm(_conv13(y, self.w2, n, k_out, 1), self.n2, relu=True, residual=s), k_out
 
 
 class FastNMNet:

@@ -10,15 +10,14 @@ search runs as one fused numba kernel (errors and top-k per row, rows across cor
 
 from __future__ import annotations
 
-import threading
-
 import numba
 import numpy as np
 import torch
 
+from .jit import launch
+
 CHUNK = 256  # rows per block of the spatial kNN: keeps the CHUNK x N distance block in cache
 _BLOCK = 32  # rows per parallel task of the compatibility kernel (one row buffer per task)
-_LAUNCH = threading.Lock()  # numba's fallback (workqueue) threading layer must not be entered by two threads at once
 
 
 def local_transforms(k0: np.ndarray, a0: np.ndarray, k1: np.ndarray, a1: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
@@ -86,9 +85,8 @@ def compatibility_neighbors(k0: np.ndarray, a0: np.ndarray, k1: np.ndarray, a1: 
     """Indices (N, k) of each correspondence's k most compatible ones, itself first.
 
     k0, k1: (N,2) matched keypoints; a0, a1: (N,2,2) their affine frames. When N < k, the
-    missing slots repeat the correspondence itself. Runs on as many threads as torch's
-    intra-op setting (``torch.set_num_threads``), so the node's per-stage thread budget holds.
-    The first call in a process compiles the kernel (numba caches it on disk afterwards).
+    missing slots repeat the correspondence itself. Runs on torch's thread count (see
+    :mod:`nmnet_ros.jit`). The first call in a process compiles the kernel (numba caches it on disk afterwards).
     """
     n = len(k0)
     kk = _check(n, k, a0, k1, a1)
@@ -99,13 +97,7 @@ def compatibility_neighbors(k0: np.ndarray, a0: np.ndarray, k1: np.ndarray, a1: 
     p1 = np.asarray(k1, np.float32)
     cols = [p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1], m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1], b[:, 0], b[:, 1]]
     out = np.empty((n, kk), np.int64)
-    torch_threads = torch.get_num_threads()
-    with _LAUNCH:
-        numba.set_num_threads(max(1, min(torch_threads, numba.config.NUMBA_NUM_THREADS)))
-        _mine_kernel(*(np.ascontiguousarray(c) for c in cols), out)
-        if torch.get_num_threads() != torch_threads:
-            # numba's OpenMP layer shares torch's runtime; starting its pool resets the OpenMP thread count
-            torch.set_num_threads(torch_threads)
+    launch(_mine_kernel, *(np.ascontiguousarray(c) for c in cols), out)
     return _pad(out, k)
 
 
