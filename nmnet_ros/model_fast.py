@@ -138,6 +138,8 @@ class FastNMNet:
         self.nh = _fold_norm(model.head[1])
         self.wo = model.head[2].weight.detach()[:, :, 0, 0].t().contiguous()  # (C, 1)
         self.bo = model.head[2].bias.detach().clone()
+        k = self.config["k"]  # compile (or load from numba's disk cache) the kernel now, not on the first frame
+        self(torch.zeros(k, 4, dtype=self.we.dtype), torch.arange(k).repeat(k, 1))
 
     @torch.inference_mode()
     def __call__(self, corr: torch.Tensor, neighbors: torch.Tensor) -> torch.Tensor:
