@@ -159,7 +159,7 @@ class FastHessianAffine:
         g = c["affine_grid"]  # Gaussian windows of the reference, in units of the patch half-width: 1, 1/3, sqrt(2)
         self._w_aff = _gaussian(g, g / 2).reshape(-1)
         go = c["orientation_grid"]  # sigma 1/3 of the half-width, on a grid spanning orientation_extent of it
-        self._w_ori = _gaussian(go, go / (6 * c["orientation_extent"])).reshape(1, -1)
+        self._w_ori = _gaussian(go, go / (6 * c["orientation_extent"])).reshape(-1).numpy()
         gd = c["descriptor_grid"]
         self._w_desc = _gaussian(gd, gd / math.sqrt(2)).reshape(-1).numpy()
         w = _sift_pooling_1d(gd)
@@ -168,7 +168,7 @@ class FastHessianAffine:
         self._cell_idx = np.ascontiguousarray(np.argsort(-pool, 1, kind="stable")[:, :nnz]).astype(np.int64)
         self._cell_w = np.ascontiguousarray(np.take_along_axis(pool, self._cell_idx, 1), np.float32)
         k = torch.exp(-((torch.arange(5, dtype=torch.float32) - 2) ** 2) / (2 * 1.6**2))
-        self._ang_smooth = (k / k.sum()).view(1, 1, 5)
+        self._ang_smooth = (k / k.sum()).numpy()
 
     @property
     def cache_key(self) -> str:
@@ -314,23 +314,12 @@ class FastHessianAffine:
         The reference's window (sigma = 1/3 of the patch half-width) leaves the outer ring nearly
         unweighted, so only the central ``orientation_extent`` of the patch is sampled.
         """
-        nb, g, ext = 36, self.config["orientation_grid"], self.config["orientation_extent"]
+        g, ext = self.config["orientation_grid"], self.config["orientation_extent"]
         u = upright(frames)
         f = ext * (g + 2) / g
-        p = torch.from_numpy(pyr.sample("image", u * f, xy, self.config["orientation_patch"] * f, g + 2)).view(-1, g + 2, g + 2)
-        dx = p[:, :, 2:] - p[:, :, :-2]
-        dy = p[:, 2:, :] - p[:, :-2, :]
-        gu = torch.add(dx[:, :-2] + dx[:, 2:], dx[:, 1:-1], alpha=2).flatten(1)  # Sobel
-        gv = torch.add(dy[:, :, :-2] + dy[:, :, 2:], dy[:, :, 1:-1], alpha=2).flatten(1)
-        hist = _soft_histogram(torch.atan2(gv, gu), torch.hypot(gu, gv).mul_(self._w_ori), nb)
-        hist = hist[:, :nb] + torch.nn.functional.pad(hist[:, nb:], (0, nb - 1))  # fold the wrap bin
-        hist = torch.nn.functional.conv1d(torch.cat([hist[:, -2:], hist, hist[:, :2]], 1)[:, None], self._ang_smooth)[:, 0]
-        val, idx = hist.max(1)
-        left = hist.gather(1, ((idx - 1) % nb)[:, None])[:, 0]
-        right = hist.gather(1, ((idx + 1) % nb)[:, None])[:, 0]
-        den = left + right - 2 * val
-        sub = torch.where(den != 0, 0.5 * (left - right) / den, torch.zeros_like(den))
-        ang = (-(2 * math.pi * (idx + sub) / nb - math.pi)).double().numpy()
+        p = pyr.sample("image", u * f, xy, self.config["orientation_patch"] * f, g + 2).reshape(-1, g + 2, g + 2)
+        ang = np.empty(len(p))
+        launch(_orientation_kernel, p, self._w_ori, self._ang_smooth, ang)
         ca, sa = np.cos(ang), np.sin(ang)
         rot = np.stack([np.stack([ca, sa], 1), np.stack([-sa, ca], 1)], 1)
         return (u.astype(np.float64) @ rot).astype(np.float32)
@@ -343,6 +332,46 @@ class FastHessianAffine:
         out = np.empty((n, 128), np.float32)
         launch(_rootsift_kernel, p, self._w_desc, self._cell_idx, self._cell_w, out)
         return out
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True, boundscheck=False)
+def _orientation_kernel(p, window, smooth, out):  # pragma: no cover - compiled
+    """Dominant gradient angle of every (g+2, g+2) patch, one keypoint per task.
+
+    3x3 Sobel gradient, magnitude times the window, 36-bin linear-interpolated histogram (bin b
+    centred on -pi + 2 pi b / 36), circular 5-tap smoothing, parabolic peak: out = -(peak - pi).
+    """
+    n, gp, _ = p.shape
+    g = gp - 2
+    nb = 36
+    for i in numba.prange(n):
+        pos = np.empty(g * g, np.float32)
+        mag = np.empty(g * g, np.float32)
+        for y in range(g):
+            for x in range(g):
+                gu = (p[i, y, x + 2] - p[i, y, x]) + (p[i, y + 2, x + 2] - p[i, y + 2, x]) + 2 * (p[i, y + 1, x + 2] - p[i, y + 1, x])
+                gv = (p[i, y + 2, x] - p[i, y, x]) + (p[i, y + 2, x + 2] - p[i, y, x + 2]) + 2 * (p[i, y + 2, x + 1] - p[i, y, x + 1])
+                mag[y * g + x] = math.sqrt(gu * gu + gv * gv) * window[y * g + x]
+                pos[y * g + x] = min((_atan2(gv, gu) + math.pi) * (nb / (2 * math.pi)), nb - 1e-4)
+        h = np.zeros(nb + 1, np.float32)
+        for s in range(g * g):
+            b0 = int(pos[s])
+            w1 = (pos[s] - b0) * mag[s]
+            h[b0] += mag[s] - w1
+            h[b0 + 1] += w1
+        h[0] += h[nb]  # the wrap bin
+        sm = np.zeros(nb, np.float32)
+        for b in range(nb):
+            for t in range(smooth.shape[0]):
+                sm[b] += smooth[t] * h[(b + t - smooth.shape[0] // 2) % nb]
+        idx = 0
+        for b in range(1, nb):
+            if sm[b] > sm[idx]:
+                idx = b
+        left, right, val = sm[(idx - 1) % nb], sm[(idx + 1) % nb], sm[idx]
+        den = left + right - 2 * val
+        sub = 0.5 * (left - right) / den if den != 0 else 0.0
+        out[i] = -(2 * math.pi * (idx + sub) / nb - math.pi)
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True, boundscheck=False)
@@ -411,16 +440,3 @@ def _scale(d, f):  # pragma: no cover - compiled
     for j in range(d.shape[0]):
         d[j] *= f
 
-
-def _soft_histogram(angle: torch.Tensor, weight: torch.Tensor, nb: int) -> torch.Tensor:
-    """Linear-interpolated orientation histogram, bin b centred on the angle -pi + 2 pi b / nb.
-
-    (n, P) angles in [-pi, pi] and weights -> (n, nb + 1): bin nb is bin 0 again (the wrap),
-    left for the caller to fold in.
-    """
-    o = (angle + math.pi).mul_(nb / (2 * math.pi)).clamp_(max=nb - 1e-4)  # in [0, nb)
-    b0 = o.long()  # floor (o >= 0)
-    w1 = (o - b0).mul_(weight)
-    w0 = weight - w1
-    h = torch.zeros(angle.shape[0], nb + 1)
-    return h.scatter_add_(1, b0, w0).scatter_add_(1, b0 + 1, w1)
