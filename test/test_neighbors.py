@@ -62,6 +62,29 @@ def test_mining_keeps_the_callers_torch_thread_count():
     assert out.stdout.split()[-1] == "1"
 
 
+def test_concurrent_mining_on_numbas_workqueue_layer():
+    """numba's fallback threading layer aborts the process when two threads launch kernels at once;
+    nmnet_ros.jit serialises launches there (a fresh process, forced onto that layer)."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np, numba\n"
+        "from concurrent.futures import ThreadPoolExecutor\n"
+        "from nmnet_ros.neighbors import compatibility_neighbors\n"
+        "r = np.random.default_rng(0); a = np.tile(np.eye(2), (1500, 1, 1))\n"
+        "sets = [(r.normal(size=(1500, 2)), a, r.normal(size=(1500, 2)), a) for _ in range(8)]\n"
+        "with ThreadPoolExecutor(4) as pool:\n"
+        "    got = list(pool.map(lambda c: compatibility_neighbors(*c), sets * 3))\n"
+        "print(numba.threading_layer(), len(got))\n"
+    )
+    env = {**os.environ, "NUMBA_THREADING_LAYER": "workqueue"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["workqueue", "24"]
+
+
 def test_consistent_group_are_each_others_neighbours():
     # 20 correspondences from one affine map + 200 random ones: the 20 pick each other.
     rng = np.random.default_rng(3)
