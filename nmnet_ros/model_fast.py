@@ -86,16 +86,17 @@ def _rows(v: torch.Tensor, j: slice) -> torch.Tensor:
 def _conv13(x: torch.Tensor, w: torch.Tensor, n: int, k: int, stride: int) -> torch.Tensor:
     """(1,3) convolution along the neighbour axis, zero padded: (n*k, C) -> (n*k_out, C_out).
 
-    One GEMM per tap, each over only the input positions that meet data (a side tap skips one
-    position in k: a third of the work at k=2), on contiguous row blocks.
+    Each tap's GEMMs cover only the input positions that meet data (a side tap skips one
+    position in k: a third of the work at k=2).
     """
     if k == 1:  # only the centre tap meets data
         return x @ w[1]
     v = x.view(n, k, -1)
-    if stride == 1:
+    if stride == 1:  # side taps accumulate in place, position by position (strided operands, no copies)
         y = (x @ w[1]).view(n, k, -1)
-        y[:, 1:] += (_rows(v, slice(None, -1)) @ w[0]).view(n, k - 1, -1)  # output j reads input j-1
-        y[:, :-1] += (_rows(v, slice(1, None)) @ w[2]).view(n, k - 1, -1)  # and j+1
+        for j in range(1, k):
+            y[:, j].addmm_(v[:, j - 1], w[0])  # output j reads input j-1
+            y[:, j - 1].addmm_(v[:, j], w[2])  # and j+1
     else:  # output j reads inputs 2j-1, 2j, 2j+1 (k even)
         ko = k // 2
         y = (_rows(v, slice(0, None, 2)) @ w[1]).addmm_(_rows(v, slice(1, None, 2)), w[2]).view(n, ko, -1)
