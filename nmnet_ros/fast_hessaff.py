@@ -4,8 +4,9 @@ Same stages and conventions as the kornia path in :mod:`nmnet_ros.features` (whi
 reference): Hessian-determinant scale space (scale-normalised by sigma^4), 3-D non-maximum
 suppression with quadratic refinement, Baumberg affine adaptation, dominant gradient
 orientation and RootSIFT on the normalised patch. What makes it fast is that every per-keypoint
-step runs on all keypoints at once: one ``cv2.remap`` per pyramid level samples every patch,
-and the moments, histograms and descriptors are batched tensor reductions. The affine step
+step runs on all keypoints at once: one compiled (numba) bilinear sampler per pyramid level
+samples every patch, the affine moments are batched tensor reductions, and orientation and
+RootSIFT are compiled kernels that keep each keypoint's histograms in registers. The affine step
 samples a smoothed structure tensor (image gradients computed once per level) instead of
 differentiating patches, so a 10 x 10 grid suffices for its weighted sums.
 
@@ -120,22 +121,45 @@ class _Pyramid:
         scale = np.sqrt(np.abs(frames[:, 0, 0] * frames[:, 1, 1] - frames[:, 0, 1] * frames[:, 1, 0]))
         level = np.clip(np.floor(np.log2(np.maximum(2 * scale / ps, 1e-12))), 0, top).astype(int)
         k = (2.0 ** -level).astype(np.float32)
-        u = (2 * np.arange(grid, dtype=np.float32) + 1) / grid - 1
-        uu = torch.from_numpy(np.tile(u, grid))[None]  # u_j: along the patch x axis
-        vv = torch.from_numpy(np.repeat(u, grid))[None]  # u_i: along the patch y axis
-        a = torch.from_numpy(np.asarray(frames, np.float32) * k[:, None, None])
-        c = torch.from_numpy(((np.asarray(centres, np.float32) + 0.5) * k[:, None] - 0.5).astype(np.float32))
-        mx = torch.addcmul(c[:, :1], a[:, 0, :1], uu).addcmul_(a[:, 0, 1:], vv).numpy()
-        my = torch.addcmul(c[:, 1:], a[:, 1, :1], uu).addcmul_(a[:, 1, 1:], vv).numpy()
+        a = np.ascontiguousarray(np.asarray(frames, np.float32) * k[:, None, None])
+        c = np.ascontiguousarray((np.asarray(centres, np.float32) + 0.5) * k[:, None] - 0.5)
         f0 = self.field(name, int(level[0]))
-        if level[0] == level[-1]:
-            return cv2.remap(f0, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(n, grid * grid, -1)
         out = np.empty((n, grid * grid, f0.shape[2]), np.float32)
         bounds = np.flatnonzero(np.diff(level)) + 1  # keypoints come sorted by scale: levels are runs
-        for a, b in zip(np.r_[0, bounds], np.r_[bounds, n], strict=True):
-            f = self.field(name, int(level[a]))
-            out[a:b] = cv2.remap(f, mx[a:b], my[a:b], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(b - a, grid * grid, -1)
+        for s, e in zip(np.r_[0, bounds], np.r_[bounds, n], strict=True):
+            launch(_sample_kernel, self.field(name, int(level[s])), a[s:e], c[s:e], grid, out[s:e])
         return out
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True, boundscheck=False)
+def _sample_kernel(field, a, c, grid, out):  # pragma: no cover - compiled
+    """out[i, gi * grid + gj] = field at c_i + a_i (u_gj, u_gi), u_k = (2k + 1) / grid - 1:
+    bilinear, border replicated (as cv2.remap's BORDER_REPLICATE, without its 1/32 px weights)."""
+    h, w, nc = field.shape
+    u = np.empty(grid, np.float32)
+    for k in range(grid):
+        u[k] = (2 * k + 1) / grid - 1
+    for i in numba.prange(a.shape[0]):
+        a00, a01, a10, a11, cx, cy = a[i, 0, 0], a[i, 0, 1], a[i, 1, 0], a[i, 1, 1], c[i, 0], c[i, 1]
+        rx, ry = abs(a00) + abs(a01), abs(a10) + abs(a11)  # the patch lies within c +- (rx, ry)
+        inside = cx - rx >= 0 and cx + rx < w - 1 and cy - ry >= 0 and cy + ry < h - 1
+        for gi in range(grid):
+            for gj in range(grid):
+                x = cx + a00 * u[gj] + a01 * u[gi]
+                y = cy + a10 * u[gj] + a11 * u[gi]
+                if inside:
+                    xa, ya = int(x), int(y)  # x, y >= 0: truncation is floor
+                    fx, fy = x - xa, y - ya
+                    xb, yb = xa + 1, ya + 1
+                else:
+                    x0, y0 = math.floor(x), math.floor(y)
+                    fx, fy = x - x0, y - y0
+                    xa, xb = min(max(int(x0), 0), w - 1), min(max(int(x0) + 1, 0), w - 1)
+                    ya, yb = min(max(int(y0), 0), h - 1), min(max(int(y0) + 1, 0), h - 1)
+                for ch in range(nc):
+                    top = field[ya, xa, ch] + fx * (field[ya, xb, ch] - field[ya, xa, ch])
+                    bot = field[yb, xa, ch] + fx * (field[yb, xb, ch] - field[yb, xa, ch])
+                    out[i, gi * grid + gj, ch] = top + fy * (bot - top)
 
 
 def _patch_gradients(g: np.ndarray, frames: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
