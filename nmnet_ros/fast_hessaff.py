@@ -92,7 +92,7 @@ class _Pyramid:
         self.tensor_sigma = 1.0
 
     def field(self, name: str, lv: int) -> np.ndarray:
-        """'grad': (H, W, 2) gx, gy; 'tensor': (H, W, 3) gx^2, gx gy, gy^2 (normalised Sobel)."""
+        """'image': (H, W, 1) the level; 'tensor': (H, W, 3) gx^2, gx gy, gy^2 (normalised Sobel), smoothed."""
         key = (name, lv)
         if key not in self._fields:
             img = self.levels[lv]
@@ -101,11 +101,8 @@ class _Pyramid:
                 return self._fields[key]
             gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
             gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-            if name == "grad":
-                self._fields[key] = cv2.merge([gx, gy])
-            else:
-                # smoothed at one pixel so that a coarse sampling grid integrates it faithfully
-                self._fields[key] = cv2.GaussianBlur(cv2.merge([gx * gx, gx * gy, gy * gy]), (0, 0), self.tensor_sigma)
+            # smoothed at one pixel so that a coarse sampling grid integrates it faithfully
+            self._fields[key] = cv2.GaussianBlur(cv2.merge([gx * gx, gx * gy, gy * gy]), (0, 0), self.tensor_sigma)
         return self._fields[key]
 
     def sample(self, name: str, frames: np.ndarray, centres: np.ndarray, ps: int, grid: int) -> np.ndarray:
@@ -160,16 +157,6 @@ def _sample_kernel(field, a, c, grid, out):  # pragma: no cover - compiled
                     top = field[ya, xa, ch] + fx * (field[ya, xb, ch] - field[ya, xa, ch])
                     bot = field[yb, xa, ch] + fx * (field[yb, xb, ch] - field[yb, xa, ch])
                     out[i, gi * grid + gj, ch] = top + fy * (bot - top)
-
-
-def _patch_gradients(g: np.ndarray, frames: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    """Image gradients (n, P, 2) -> patch-frame gradients A^T g, as two (n, P) tensors."""
-    t = torch.from_numpy(g)
-    a = torch.from_numpy(np.asarray(frames, np.float32))
-    gx, gy = t[..., 0], t[..., 1]
-    gu = gx * a[:, 0, :1] + gy * a[:, 1, :1]
-    gv = gx * a[:, 0, 1:] + gy * a[:, 1, 1:]
-    return gu, gv
 
 
 class FastHessianAffine:
