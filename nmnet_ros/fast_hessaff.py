@@ -186,7 +186,8 @@ class FastHessianAffine:
         """Identifies the settings, for on-disk feature caches."""
         c = self.config
         return (f"fasthesaff-k{c['max_keypoints']}-a{c['affine_iterations']}x{c['affine_patch']}"
-                f"-o{c['orientation_patch']}-p{c['patch_size']}-g{c['affine_grid']}x{c['orientation_grid']}x{c['descriptor_grid']}-m{c['mr_size']}-u{int(c['upright'])}")
+                f"-o{c['orientation_patch']}-p{c['patch_size']}-g{c['affine_grid']}x{c['orientation_grid']}x{c['descriptor_grid']}-m{c['mr_size']}-u{int(c['upright'])}"
+                "-s2")  # s2: the float bilinear sampler (frames moved ~1e-3 px): older caches are not reused
 
     @torch.inference_mode()
     def __call__(self, image: np.ndarray) -> Features:
