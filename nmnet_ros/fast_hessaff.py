@@ -364,7 +364,7 @@ def _orientation_kernel(p, window, smooth, out):  # pragma: no cover - compiled
                 gu = (p[i, y, x + 2] - p[i, y, x]) + (p[i, y + 2, x + 2] - p[i, y + 2, x]) + 2 * (p[i, y + 1, x + 2] - p[i, y + 1, x])
                 gv = (p[i, y + 2, x] - p[i, y, x]) + (p[i, y + 2, x + 2] - p[i, y, x + 2]) + 2 * (p[i, y + 2, x + 1] - p[i, y, x + 1])
                 mag[y * g + x] = math.sqrt(gu * gu + gv * gv) * window[y * g + x]
-                pos[y * g + x] = min((_atan2(gv, gu) + math.pi) * (nb / (2 * math.pi)), nb - 1e-4)
+                pos[y * g + x] = _bin_position(gu, gv, nb)
         h = np.zeros(nb + 1, np.float32)
         for s in range(g * g):
             b0 = int(pos[s])
@@ -407,7 +407,7 @@ def _rootsift_kernel(p, window, cell_idx, cell_w, out):  # pragma: no cover - co
                 gu = p[i, y + 1, x + 2] - p[i, y + 1, x]
                 gv = p[i, y + 2, x + 1] - p[i, y, x + 1]
                 mag[y * g + x] = math.sqrt(gu * gu + gv * gv) * window[y * g + x]
-                pos[y * g + x] = min((_atan2(gv, gu) + math.pi) * (nb / (2 * math.pi)), nb - 1e-4)
+                pos[y * g + x] = _bin_position(gu, gv, nb)
         h = np.zeros((ncell, nb + 1), np.float32)
         for s in range(g * g):
             b0 = int(pos[s])
@@ -430,6 +430,13 @@ def _rootsift_kernel(p, window, cell_idx, cell_w, out):  # pragma: no cover - co
         for j in range(d.shape[0]):
             d[j] = math.sqrt(d[j] + 1e-10)
         _scale(d, 1.0 / max(math.sqrt((d * d).sum()), 1e-12))
+
+
+@numba.njit(inline="always")
+def _bin_position(gu, gv, nb):  # pragma: no cover - compiled
+    """Angle of the gradient (gu, gv) in histogram-bin units, in [0, nb): bin b is centred on
+    -pi + 2 pi b / nb (shared by the orientation and descriptor histograms)."""
+    return min((_atan2(gv, gu) + math.pi) * (nb / (2 * math.pi)), nb - 1e-4)
 
 
 @numba.njit(inline="always")
