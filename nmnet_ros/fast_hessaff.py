@@ -180,6 +180,9 @@ class FastHessianAffine:
         self._cell_w = np.ascontiguousarray(np.take_along_axis(pool, self._cell_idx, 1), np.float32)
         k = torch.exp(-((torch.arange(5, dtype=torch.float32) - 2) ** 2) / (2 * 1.6**2))
         self._ang_smooth = (k / k.sum()).numpy()
+        # compile (or load from numba's disk cache) the sampler, orientation and descriptor kernels
+        # now, not on the first frame: a noise image has keypoints at every pyramid level
+        self(np.random.default_rng(0).integers(0, 256, (96, 96), dtype=np.uint8))
 
     @property
     def cache_key(self) -> str:

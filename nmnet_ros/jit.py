@@ -1,6 +1,7 @@
 """Calling numba kernels beside torch: one thread budget, one caller at a time.
 
-Compiled kernels (neighbour mining, NM-Net's normalisation) run on as many threads as torch's
+Compiled kernels (neighbour mining, NM-Net's normalisation, the fast detector's patch sampler,
+orientation and descriptor) run on as many threads as torch's
 intra-op setting (``torch.set_num_threads``), so the node's per-stage thread budget holds for
 them too. numba's OpenMP layer shares torch's OpenMP runtime and resets its thread count when
 its pool starts; that is undone here. Its fallback (workqueue) layer must not be entered by two
@@ -23,7 +24,8 @@ _LAUNCH = threading.Lock()
 
 
 def launch(kernel: Callable[..., Any], *args: Any) -> Any:
-    """Run ``kernel(*args)`` on torch's thread count, serialised across Python threads."""
+    """Run ``kernel(*args)`` on torch's thread count (serialised across Python threads only on the
+    workqueue layer)."""
     torch_threads = torch.get_num_threads()
     with _LAUNCH if _needs_lock() else contextlib.nullcontext():
         numba.set_num_threads(max(1, min(torch_threads, numba.config.NUMBA_NUM_THREADS)))

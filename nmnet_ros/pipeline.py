@@ -16,7 +16,6 @@ from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Features
 from .geometry import Camera, PoseEstimate
 from .matching import match_descriptors
-from .neighbors import warm_up
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, build
 
@@ -66,10 +65,6 @@ class Frontend:
         self.select = build(c["selector"], {"score_threshold": c["score_threshold"], "k": c["k"], "threshold_px": c["threshold_px"]},
                             weights)
         self.prev: tuple[float, Features, tuple[int, int]] | None = None
-        # compile / load the numba kernels now: otherwise the first frames would pay for it
-        self.detector(np.random.default_rng(0).integers(0, 256, (96, 96), dtype=np.uint8))
-        if c["selector"].startswith("nmnet"):
-            warm_up()
 
     def reset(self) -> None:
         """Forget the previous frame (the next frame starts a new chain)."""

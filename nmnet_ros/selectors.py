@@ -21,7 +21,7 @@ import torch
 from .geometry import PoseEstimate, estimate_essential, recover_pose, weighted_eight_point
 from .model import NMNet, load_model
 from .model_fast import FastNMNet
-from .neighbors import mine_neighbors
+from .neighbors import mine_neighbors, warm_up
 
 DEFAULT_CONFIG: dict = {
     "threshold_px": 0.15,  # robust-estimator inlier threshold, pixels (best pose AUC on training pairs; see README)
@@ -187,6 +187,8 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         variant = "nmnet-sp" if name == "nmnet-sp" else "nmnet"
         model = FastNMNet(load_model(weights.get(variant), variant))  # exact rewrite, ~2x faster on CPU
         model.config["k"] = cfg.get("k", model.config["k"])
+        if model.config["neighbors"] == "compatibility":
+            warm_up()  # the mining kernel's compile / cache load happens here, not on the first frame pair
         if name in ("nmnet+magsac", "nmnet+ratio+magsac"):
             return lambda c: nmnet_magsac_select(model, c, cfg, classic=name == "nmnet+ratio+magsac")
         return lambda c: nmnet_select(model, c, cfg)

@@ -132,6 +132,8 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     if c["variant"] not in NEIGHBORS:
         raise ValueError(f"unknown variant {c['variant']!r}; use one of {sorted(NEIGHBORS)}")
     kind = NEIGHBORS[c["variant"]]
+    if not isinstance(c["workers"], int) or c["workers"] < 1:
+        raise ValueError(f"--workers must be a whole number >= 1 (threads mining neighbours), got {c['workers']!r}")
     if str(c["device"]).startswith("cuda") and not torch.cuda.is_available():
         raise ValueError(f"--device {c['device']}: torch {torch.__version__} sees no CUDA GPU here; use --device cpu")
     torch.manual_seed(c["seed"])
@@ -162,7 +164,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         start_epoch, best_f, history = ck["epoch"] + 1, ck["best_f"], ck["history"]
         log(f"resumed after epoch {ck['epoch']}, best val F {best_f:.2f}")
 
-    pool = ThreadPoolExecutor(max(1, c["workers"]))
+    pool = ThreadPoolExecutor(c["workers"])
     t_start = time.time()
     for epoch in range(start_epoch, c["epochs"]):
         model.train()

@@ -30,7 +30,7 @@ def test_vectorised_equals_literal_formula(n):
     np.testing.assert_array_equal(fast, ref)
 
 
-def test_threads_mine_concurrently_without_sharing_buffers():
+def test_threads_mine_concurrently():
     """Training mines a batch in parallel threads: concurrent calls must neither crash numba's
     thread pool nor mix up results."""
     from concurrent.futures import ThreadPoolExecutor

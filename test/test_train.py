@@ -27,6 +27,14 @@ def test_cuda_without_a_gpu_is_a_clear_error(tmp_path):
     assert not any(tmp_path.iterdir())  # refused before any work
 
 
+@pytest.mark.parametrize("workers", [0, -2])
+def test_workers_below_one_is_a_clear_error(tmp_path, workers):
+    seq = str(data_dir("strecha-fountain-p11"))
+    with pytest.raises(ValueError, match="--workers must be a whole number >= 1"):
+        train([seq], [seq], tmp_path, {"workers": workers}, cache_dir=tmp_path / "cache")
+    assert not any(tmp_path.iterdir())  # refused before any work
+
+
 def test_train_few_steps_then_resume(tmp_path):
     seq = str(data_dir("strecha-fountain-p11"))
     cfg = {"epochs": 1, "steps_per_epoch": 2, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1,
