@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cache import FeatureCache
-from .datasets import Sequence, epipolar_labels, has_baseline
+from .datasets import LABEL_THRESHOLD, Sequence, epipolar_labels, has_baseline
 from .features import Features
 from .matching import Matches, match_descriptors
 
@@ -67,12 +67,13 @@ def select_pairs(seq: Sequence, gaps: tuple[int, ...], frames: range | None = No
     return out
 
 
-def make_pair(seq: Sequence, i: int, j: int, cache: FeatureCache, match_config: dict | None = None) -> PairData:
+def make_pair(seq: Sequence, i: int, j: int, cache: FeatureCache, match_config: dict | None = None,
+              label_threshold: float = LABEL_THRESHOLD) -> PairData:
     """Features (cached), nearest-neighbour matches and ground-truth labels of pair (i, j)."""
     f0, f1 = cache(seq, i), cache(seq, j)
     m = match_descriptors(f0.descriptors, f1.descriptors, match_config)
     k0, k1 = f0.keypoints[m.idx[:, 0]], f1.keypoints[m.idx[:, 1]]
-    labels, _ = epipolar_labels(seq, i, j, k0, k1)
+    labels, _ = epipolar_labels(seq, i, j, k0, k1, label_threshold)
     R, t = seq.relative_pose(i, j)
     return PairData(seq, i, j, f0, f1, m, labels, R, t)
 

@@ -1,7 +1,7 @@
 """``nmnet train``: fit NM-Net on sequence folders with ground-truth poses.
 
 Features are cached per image; putative matches are every keypoint's nearest neighbour (the
-paper's setting); labels are the squared symmetric epipolar distance < 1e-4 (normalised).
+paper's setting); labels are the squared symmetric epipolar distance < 1e-4 (normalised; ``--label-threshold``).
 Each step samples ``batch`` pairs and ``num_corr`` correspondences per pair, mines the
 neighbours on that sample, and minimises balanced BCE (positives weighted by N_neg/N_pos).
 The best checkpoint by validation F-measure is kept; ``last.pt`` makes a run resumable.
@@ -20,8 +20,8 @@ import numpy as np
 import torch
 
 from .cache import FeatureCache
-from .datasets import Sequence
-from .features import HessianAffine
+from .datasets import LABEL_THRESHOLD, Sequence
+from .detectors import DETECTORS, make_detector
 from .metrics import prf
 from .model import NMNet
 from .neighbors import mine_neighbors
@@ -40,20 +40,24 @@ DEFAULT_CONFIG: dict = {
     "min_inliers": 5,
     "device": "cpu",  # "cuda" trains on a GPU; neighbours are always mined on the CPU
     "workers": 1,  # threads preparing a batch (neighbour mining releases the GIL)
+    "detector": "hessian-affine",  # local feature frames (the shipped weights: the kornia reference)
+    "label_threshold": LABEL_THRESHOLD,  # inlier when the squared symmetric epipolar distance is below (paper: 1e-4)
+    "init": None,  # checkpoint to start from (fine-tuning); None = random initialisation
 }
 
 NEIGHBORS = {"nmnet": "compatibility", "nmnet-sp": "spatial"}
 
 
 def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min_inliers: int,
-               log=print) -> list[PairData]:
+               log=print, label_threshold: float = LABEL_THRESHOLD) -> list[PairData]:
     """Labelled pairs from 'PATH[:a-b]' specs, dropping pairs with almost no inliers."""
     out = []
     for spec in specs:
         path, frames = parse_seq_spec(spec)
         seq = Sequence.load(path)
         chosen = select_pairs(seq, gaps, frames)
-        kept = [p for p in (make_pair(seq, i, j, cache) for i, j in chosen) if p.labels.sum() >= min_inliers]
+        made = (make_pair(seq, i, j, cache, label_threshold=label_threshold) for i, j in chosen)
+        kept = [p for p in made if p.labels.sum() >= min_inliers]
         ratio = np.mean([p.labels.mean() for p in kept]) if kept else 0.0
         log(f"  {spec}: {len(kept)} pairs (of {len(chosen)}), mean inlier ratio {100 * ratio:.1f}%")
         out.extend(kept)
@@ -125,6 +129,21 @@ def _git_commit() -> str:
         return "unknown"
 
 
+def _init_state(path: Path, model: NMNet) -> dict:
+    """State dict of a checkpoint to fine-tune from, checked against the model being trained."""
+    if not path.is_file():
+        raise FileNotFoundError(f"--init {path}: no such checkpoint")
+    ck = torch.load(path, map_location="cpu", weights_only=False)
+    state = ck.get("state_dict") if isinstance(ck, dict) else None
+    if state is None:
+        raise ValueError(f"--init {path}: not an NM-Net checkpoint (no 'state_dict'); use best.pt/last.pt of nmnet train")
+    own = model.state_dict()
+    bad = [k for k in own if k not in state or state[k].shape != own[k].shape]
+    if bad or ck.get("config", {}).get("neighbors", model.config["neighbors"]) != model.config["neighbors"]:
+        raise ValueError(f"--init {path}: does not fit this --variant ({len(bad)} tensors missing or of another shape)")
+    return state
+
+
 def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: dict | None = None,
           resume: bool = False, cache_dir: Path | None = None, log=print) -> dict:
     """Train; writes ``best.pt`` (by validation F), ``last.pt`` and ``history.json`` to out_dir."""
@@ -138,18 +157,24 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         raise ValueError(f"--device {c['device']}: torch {torch.__version__} sees no CUDA GPU here; use --device cpu")
     torch.manual_seed(c["seed"])
     rng = np.random.default_rng(c["seed"])
-    cache = FeatureCache(HessianAffine(), cache_dir)
+    if not 0 < c["label_threshold"] < 1:
+        raise ValueError(f"--label-threshold must be in (0, 1) (squared normalised distance), got {c['label_threshold']}")
+    model = NMNet({"neighbors": kind})
+    if c["init"] is not None and not (resume and (Path(out_dir) / "last.pt").is_file()):
+        model.load_state_dict(_init_state(Path(c["init"]), model))  # checked before any features are computed
+        log(f"initialised from {c['init']}")
+    cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
-    train_pairs = load_pairs(train_specs, cache, tuple(c["gaps"]), c["min_inliers"], log)
+    train_pairs = load_pairs(train_specs, cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"])
     log("loading validation pairs")
-    val_pairs = load_pairs(val_specs, cache, tuple(c["gaps"]), c["min_inliers"], log)
+    val_pairs = load_pairs(val_specs, cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"])
     if not train_pairs:
         raise ValueError("no training pairs: check the sequence folders and frame ranges")
     if len(val_pairs) > c["max_val_pairs"]:
         val_pairs = [val_pairs[i] for i in np.linspace(0, len(val_pairs) - 1, c["max_val_pairs"]).round().astype(int)]
 
     device = torch.device(c["device"])
-    model = NMNet({"neighbors": kind}).to(device)
+    model = model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=c["lr"])
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -220,6 +245,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=DEFAULT_CONFIG["workers"], help="threads mining neighbours for a batch")
     p.add_argument("--gaps", default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    p.add_argument("--detector", default=DEFAULT_CONFIG["detector"], choices=sorted(DETECTORS),
+                   help="local feature frames to train on (use the one the node runs)")
+    p.add_argument("--label-threshold", type=float, default=DEFAULT_CONFIG["label_threshold"],
+                   help="inlier label: squared symmetric epipolar distance below this, normalised coordinates")
+    p.add_argument("--init", type=Path, default=None, help="checkpoint to start from (fine-tuning)")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder (default ~/.cache/nmnet_ros)")
 
 
@@ -233,8 +263,10 @@ def parse_gaps(text: str) -> tuple[int, ...]:
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet train``."""
-    keys = ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr", "device", "workers")
+    keys = ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr", "device", "workers",
+            "detector", "label_threshold")
     cfg = {k: getattr(args, k) for k in keys}
+    cfg["init"] = str(args.init) if args.init else None
     cfg["gaps"] = parse_gaps(args.gaps)
     summary = train(args.train, args.val, args.out, cfg, resume=args.resume, cache_dir=args.cache)
     print(json.dumps(summary, indent=1))

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from nmnet_ros.model import load_model
-from nmnet_ros.train import balanced_bce, train
+from nmnet_ros.cache import FeatureCache
+from nmnet_ros.detectors import make_detector
+from nmnet_ros.model import load_model, weights_dir
+from nmnet_ros.train import balanced_bce, load_pairs, train
 
 from .conftest import data_dir
 
@@ -48,3 +50,41 @@ def test_train_few_steps_then_resume(tmp_path):
     hist = json.loads((tmp_path / "history.json").read_text())
     assert [h["epoch"] for h in hist] == [0, 1] and s2["best_val_f1_at_0.5"] >= s["best_val_f1_at_0.5"]
     assert 0 < s2["score_threshold"] < 1 and s2["val_f1"] >= s2["best_val_f1_at_0.5"] - 1e-9
+
+
+def test_fine_tune_from_shipped_weights_on_the_fast_detector(tmp_path):
+    seq = str(data_dir("strecha-fountain-p11"))
+    cfg = {"epochs": 1, "steps_per_epoch": 1, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1,
+           "lr": 0.0, "detector": "hessian-affine-fast", "init": str(weights_dir() / "nmnet.pt")}
+    train([f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path, cfg, cache_dir=tmp_path / "cache")
+    shipped = dict(load_model().named_parameters())
+    tuned = dict(load_model(tmp_path / "best.pt").named_parameters())
+    assert all(torch.equal(shipped[k], tuned[k]) for k in shipped)  # lr 0: the parameters are the initial ones
+    assert [p.name for p in (tmp_path / "cache").iterdir()] == [make_detector("hessian-affine-fast").cache_key]
+
+
+def test_stricter_label_threshold_keeps_a_subset_of_the_inliers(tmp_path):
+    cache = FeatureCache(make_detector("hessian-affine-fast"), tmp_path)
+    spec = [f"{data_dir('strecha-fountain-p11')}:0-2"]
+    loose = load_pairs(spec, cache, (1,), 5, log=lambda _: None)
+    strict = load_pairs(spec, cache, (1,), 5, log=lambda _: None, label_threshold=1e-5)
+    for a, b in zip(loose, strict, strict=True):
+        assert 0 < b.labels.sum() < a.labels.sum() and not (b.labels & ~a.labels).any()
+
+
+@pytest.mark.parametrize(("init", "match"), [("missing.pt", "no such checkpoint"),
+                                             ("nmnet-sp", "does not fit this --variant")])
+def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
+    seq = str(data_dir("strecha-fountain-p11"))
+    path = weights_dir() / "nmnet-sp.pt" if init == "nmnet-sp" else tmp_path / init
+    with pytest.raises((ValueError, FileNotFoundError), match=match):
+        train([seq], [seq], tmp_path / "out", {"init": str(path)}, cache_dir=tmp_path / "cache")
+    assert not (tmp_path / "out").exists()  # refused before any work
+
+
+@pytest.mark.parametrize("threshold", [0.0, -1e-4, 2.0])
+def test_label_threshold_out_of_range_is_a_clear_error(tmp_path, threshold):
+    seq = str(data_dir("strecha-fountain-p11"))
+    with pytest.raises(ValueError, match="--label-threshold must be in"):
+        train([seq], [seq], tmp_path, {"label_threshold": threshold}, cache_dir=tmp_path / "cache")
+    assert not any(tmp_path.iterdir())
