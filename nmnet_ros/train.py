@@ -133,7 +133,11 @@ def _init_state(path: Path, model: NMNet) -> dict:
     """State dict of a checkpoint to fine-tune from, checked against the model being trained."""
     if not path.is_file():
         raise FileNotFoundError(f"--init {path}: no such checkpoint")
-    ck = torch.load(path, map_location="cpu", weights_only=False)
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as e:  # torch raises several types for a file that is not a checkpoint
+        raise ValueError(f"--init {path}: not readable as a torch checkpoint ({type(e).__name__}); "
+                         "use best.pt/last.pt of nmnet train") from e
     state = ck.get("state_dict") if isinstance(ck, dict) else None
     if state is None:
         raise ValueError(f"--init {path}: not an NM-Net checkpoint (no 'state_dict'); use best.pt/last.pt of nmnet train")

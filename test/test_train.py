@@ -73,10 +73,16 @@ def test_stricter_label_threshold_keeps_a_subset_of_the_inliers(tmp_path):
 
 
 @pytest.mark.parametrize(("init", "match"), [("missing.pt", "no such checkpoint"),
+                                             ("text.pt", "not readable as a torch checkpoint"),
+                                             ("dict.pt", "not an NM-Net checkpoint"),
                                              ("nmnet-sp", "does not fit this --variant")])
 def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
     seq = str(data_dir("strecha-fountain-p11"))
     path = weights_dir() / "nmnet-sp.pt" if init == "nmnet-sp" else tmp_path / init
+    if init == "text.pt":
+        path.write_text("not a checkpoint")
+    elif init == "dict.pt":
+        torch.save({"weights": torch.zeros(3)}, path)
     with pytest.raises((ValueError, FileNotFoundError), match=match):
         train([seq], [seq], tmp_path / "out", {"init": str(path)}, cache_dir=tmp_path / "cache")
     assert not (tmp_path / "out").exists()  # refused before any work
