@@ -23,7 +23,7 @@ from .cache import FeatureCache
 from .datasets import LABEL_THRESHOLD, Sequence
 from .detectors import DETECTORS, make_detector
 from .metrics import prf
-from .model import NMNet
+from .model import NMNet, WeightsError, load_model
 from .neighbors import mine_neighbors
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs
 
@@ -129,23 +129,16 @@ def _git_commit() -> str:
         return "unknown"
 
 
-def _init_state(path: Path, model: NMNet) -> dict:
-    """State dict of a checkpoint to fine-tune from, checked against the model being trained."""
-    if not path.is_file():
-        raise FileNotFoundError(f"--init {path}: no such checkpoint")
+def _init_model(path: Path, kind: str) -> NMNet:
+    """The checkpoint to fine-tune from (``load_model``'s checks), refused when trained for other neighbours."""
     try:
-        ck = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as e:  # torch raises several types for a file that is not a checkpoint
-        raise ValueError(f"--init {path}: not readable as a torch checkpoint ({type(e).__name__}); "
-                         "use best.pt/last.pt of nmnet train") from e
-    state = ck.get("state_dict") if isinstance(ck, dict) else None
-    if state is None:
-        raise ValueError(f"--init {path}: not an NM-Net checkpoint (no 'state_dict'); use best.pt/last.pt of nmnet train")
-    own = model.state_dict()
-    bad = [k for k in own if k not in state or state[k].shape != own[k].shape]
-    if bad or ck.get("config", {}).get("neighbors", model.config["neighbors"]) != model.config["neighbors"]:
-        raise ValueError(f"--init {path}: does not fit this --variant ({len(bad)} tensors missing or of another shape)")
-    return state
+        model = load_model(path)
+    except WeightsError as e:
+        raise WeightsError(f"--init {e}") from e
+    if model.config["neighbors"] != kind:
+        raise WeightsError(f"--init {path}: trained with {model.config['neighbors']} neighbours; it does not fit "
+                           f"this --variant ({kind} neighbours)")
+    return model
 
 
 def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: dict | None = None,
@@ -165,7 +158,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         raise ValueError(f"--label-threshold must be in (0, 1) (squared normalised distance), got {c['label_threshold']}")
     model = NMNet({"neighbors": kind})
     if c["init"] is not None and not (resume and (Path(out_dir) / "last.pt").is_file()):
-        model.load_state_dict(_init_state(Path(c["init"]), model))  # checked before any features are computed
+        model = _init_model(Path(c["init"]), kind)  # checked before any features are computed
         log(f"initialised from {c['init']}")
     cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
