@@ -156,10 +156,13 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     rng = np.random.default_rng(c["seed"])
     if not 0 < c["label_threshold"] < 1:
         raise ValueError(f"--label-threshold must be in (0, 1) (squared normalised distance), got {c['label_threshold']}")
-    model = NMNet({"neighbors": kind})
-    if c["init"] is not None and not (resume and (Path(out_dir) / "last.pt").is_file()):
+    out_dir = Path(out_dir)
+    resuming = resume and (out_dir / "last.pt").is_file()  # --init only seeds a run's first start
+    if c["init"] is not None and not resuming:
         model = _init_model(Path(c["init"]), kind)  # checked before any features are computed
         log(f"initialised from {c['init']}")
+    else:
+        model = NMNet({"neighbors": kind})
     cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
     train_pairs = load_pairs(train_specs, cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"])
@@ -173,11 +176,10 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     device = torch.device(c["device"])
     model = model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=c["lr"])
-    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     history: list[dict] = []
     start_epoch, best_f = 0, -1.0
-    if resume and (out_dir / "last.pt").is_file():
+    if resuming:
         ck = torch.load(out_dir / "last.pt", map_location="cpu", weights_only=False)
         model.load_state_dict(ck["state_dict"])
         opt.load_state_dict(ck["optimizer"])

@@ -61,6 +61,10 @@ def test_fine_tune_from_shipped_weights_on_the_fast_detector(tmp_path):
     tuned = dict(load_model(tmp_path / "best.pt").named_parameters())
     assert all(torch.equal(shipped[k], tuned[k]) for k in shipped)  # lr 0: the parameters are the initial ones
     assert [p.name for p in (tmp_path / "cache").iterdir()] == [make_detector("hessian-affine-fast").cache_key]
+    # resuming continues from last.pt: --init seeded the first start only (a missing file is not read again)
+    train([f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path, {**cfg, "epochs": 2, "init": str(tmp_path / "gone.pt")},
+          resume=True, cache_dir=tmp_path / "cache")
+    assert [h["epoch"] for h in json.loads((tmp_path / "history.json").read_text())] == [0, 1]
 
 
 def test_stricter_label_threshold_keeps_a_subset_of_the_inliers(tmp_path):
