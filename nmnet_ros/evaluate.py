@@ -120,6 +120,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="MAGSAC++/RANSAC inlier threshold in pixels for every robust method")
     p.add_argument("--score-threshold", type=float, default=None,
                    help="NM-Net probability cut for every nmnet method (default: the one calibrated with the weights)")
+    p.add_argument("--refine-iterations", type=int, default=SELECTOR_DEFAULTS["refine_iterations"],
+                   help="robust pose polish after every MAGSAC++/RANSAC fit (0 = the plain OpenCV estimate)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -132,12 +134,15 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--score-threshold must be in [0, 1), got {args.score_threshold}")
     if not args.threshold_px > 0:
         raise ValueError(f"--threshold-px must be > 0, got {args.threshold_px}")
+    if args.refine_iterations < 0:
+        raise ValueError(f"--refine-iterations must be >= 0 (0 = off), got {args.refine_iterations}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
     pairs = load_eval_pairs(args.seqs, parse_gaps(args.gaps), FeatureCache(make_detector(args.detector), args.cache),
                             args.stride, args.max_pairs)
-    res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px})
+    res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px,
+                                             "refine_iterations": args.refine_iterations})
     print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%\n")
     print(markdown_table(res["metrics"]))
     plot_curves(res["errors"], args.plot)

@@ -158,6 +158,78 @@ def recover_pose(E: np.ndarray, x0n: np.ndarray, x1n: np.ndarray, mask: np.ndarr
     return PoseEstimate(R=R, t=t.ravel() / max(np.linalg.norm(t), 1e-12), E=E, inliers=m_out.ravel() > 0)
 
 
+def _pose_jacobian_basis(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """dE/dp for the 5 pose parameters (3 rotation, 2 on the unit sphere of t), and the sphere basis."""
+    B = np.linalg.svd(t[None])[2][1:]  # (2,3) orthonormal, perpendicular to t
+    tx = skew(t)
+    dE = [tx @ R @ skew(e) for e in np.eye(3)] + [skew(b) @ R for b in B]
+    return np.stack(dE), B
+
+
+def _sampson(E: np.ndarray, h0: np.ndarray, h1: np.ndarray, dE: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Signed Sampson residuals of homogeneous normalised points, and their (P,N) derivatives for dE."""
+    v0, v1 = h0 @ E.T, h1 @ E
+    a = np.sum(h1 * v0, axis=1)
+    d = v0[:, 0] ** 2 + v0[:, 1] ** 2 + v1[:, 0] ** 2 + v1[:, 1] ** 2 + 1e-30
+    r = a / np.sqrt(d)
+    if dE is None:
+        return r, None
+    dv0 = h0 @ dE.transpose(0, 2, 1)  # (P,N,3): dE x0 per parameter
+    dv1 = h1 @ dE  # dE^T x1
+    da = np.sum(h1[None] * dv0, axis=2)
+    dd = 2.0 * (v0[:, 0] * dv0[..., 0] + v0[:, 1] * dv0[..., 1] + v1[:, 0] * dv1[..., 0] + v1[:, 1] * dv1[..., 1])
+    return r, da / np.sqrt(d) - 0.5 * a * dd / d ** 1.5
+
+
+def refine_pose(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, sigma: float,
+                iterations: int = 10, weights: np.ndarray | None = None) -> PoseEstimate:
+    """Polish (R, t) by Levenberg-Marquardt on the Cauchy-robust Sampson error over all given matches.
+
+    A robust estimator's answer comes from its best minimal sample and local optimisation on the
+    inliers of one threshold; a smooth robust cost over every candidate match (``sigma`` in
+    normalised units, e.g. the inlier threshold) weighs each by how well it fits and measured
+    +0.4 to +1.4 pose AUC@5 on the validation pairs (see README). Only steps that lower the cost
+    are taken, so the result is never worse than the input by that cost. Mask and inliers are kept.
+    """
+    x0n, x1n = _checked_pair(x0n, x1n)
+    if len(x0n) < MIN_MATCHES or iterations <= 0 or sigma <= 0:
+        return pose
+    h0, h1 = np.c_[x0n, np.ones(len(x0n))], np.c_[x1n, np.ones(len(x1n))]
+    R, t = np.asarray(pose.R, np.float64), np.ravel(pose.t).astype(np.float64)
+    t = t / max(np.linalg.norm(t), 1e-12)
+    s2 = sigma * sigma
+    q = np.ones(len(x0n)) if weights is None else np.asarray(weights, np.float64).ravel()
+
+    def cost(E: np.ndarray) -> float:
+        return float(np.sum(q * np.log1p(_sampson(E, h0, h1)[0] ** 2 / s2)))
+
+    E = skew(t) @ R
+    current = cost(E)
+    lam = 1e-3
+    for _ in range(iterations):
+        dE, B = _pose_jacobian_basis(R, t)
+        r, J = _sampson(E, h0, h1, dE)
+        w = q / (s2 + r * r)  # IRLS weight of the Cauchy loss
+        H = (J * w) @ J.T
+        g = (J * w) @ r
+        improved = False
+        while lam < 1e8:
+            step = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), -g)
+            R_new = R @ cv2.Rodrigues(step[:3])[0]
+            t_new = t + B.T @ step[3:]
+            t_new /= np.linalg.norm(t_new)
+            E_new = skew(t_new) @ R_new
+            c = cost(E_new)
+            if c < current:
+                R, t, E, current, lam, improved = R_new, t_new, E_new, c, max(lam / 10, 1e-7), True
+                break
+            lam *= 10
+        if not improved or np.linalg.norm(step) < 1e-10:
+            break
+    return PoseEstimate(R=R, t=t.reshape(np.shape(pose.t)), E=E, inliers=pose.inliers)
+
+
 def rotation_error_deg(R: np.ndarray, R_gt: np.ndarray) -> float:
     """Angle of R R_gt^T in degrees."""
     c = (np.trace(R @ R_gt.T) - 1.0) / 2.0

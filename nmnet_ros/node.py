@@ -54,6 +54,8 @@ PARAMS: dict[str, tuple] = {
                        ("ratio_magsac", "magsac", "weighted8", "classic")),
     "pose_threshold_px": (SELECTOR_DEFAULTS["threshold_px"], "MAGSAC++ inlier threshold in pixels (chosen on training "
                           "pairs; raise it for a poorly calibrated or rolling-shutter camera)", (0.05, 10.0)),
+    "pose_refine_iterations": (SELECTOR_DEFAULTS["refine_iterations"], "Levenberg-Marquardt steps polishing the pose "
+                               "on the Cauchy-robust Sampson error after MAGSAC++ (0 = off)", (0, 50)),
     "qos": ("sensor_data", "input QoS: sensor_data (best effort, depth 5) or reliable (depth 10)", ("sensor_data", "reliable")),
     "use_compressed": (False, "subscribe image/compressed (sensor_msgs/CompressedImage) instead of image", None),
     "threads": (1, "CPU threads per pipeline stage (torch and OpenCV); detection and the rest run in parallel, "
@@ -125,7 +127,7 @@ class NMNetNode(Node):
             "detector": p["detector"], "max_keypoints": p["max_keypoints"], "selector": SELECTORS[p["pose_estimator"]],
             "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
             "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
-            "threshold_px": p["pose_threshold_px"],
+            "threshold_px": p["pose_threshold_px"], "refine_iterations": p["pose_refine_iterations"],
         })
         if p["fx"] > 0 and p["fy"] > 0:
             self.frontend.camera = Camera(np.array([[p["fx"], 0, p["cx"]], [0, p["fy"], p["cy"]], [0, 0, 1.0]]))

@@ -27,6 +27,7 @@ DEFAULT_CONFIG: dict = {
     "score_threshold": None,  # None: the threshold calibrated with the weights
     "k": 8,  # compatibility neighbours per correspondence
     "threshold_px": SELECTOR_DEFAULTS["threshold_px"],  # MAGSAC++ inlier threshold, pixels
+    "refine_iterations": SELECTOR_DEFAULTS["refine_iterations"],  # robust pose polish after MAGSAC++ (0 = off)
     "ratio": None,  # optional ratio test on the putative matches (the paper uses none)
     "mutual": False,
     "min_matches": 8,
@@ -62,7 +63,7 @@ class Frontend:
         self.camera = camera
         self.detector = make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]})
         weights = {"nmnet": c["weights"]} if c["weights"] else None
-        self.select = build(c["selector"], {"score_threshold": c["score_threshold"], "k": c["k"], "threshold_px": c["threshold_px"]},
+        self.select = build(c["selector"], {key: c[key] for key in ("score_threshold", "k", "threshold_px", "refine_iterations")},
                             weights)
         self.prev: tuple[float, Features, tuple[int, int]] | None = None
 

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import torch
 
-from .geometry import PoseEstimate, estimate_essential, recover_pose, weighted_eight_point
+from .geometry import PoseEstimate, estimate_essential, recover_pose, refine_pose, weighted_eight_point
 from .model import NMNet, load_model
 from .model_fast import FastNMNet
 from .neighbors import mine_neighbors, warm_up
@@ -27,6 +27,7 @@ DEFAULT_CONFIG: dict = {
     "threshold_px": 0.15,  # robust-estimator inlier threshold, pixels (best pose AUC on training pairs; see README)
     "ratio": 0.8,
     "score_threshold": None,  # NM-Net probability above which a match is selected; None = calibrated with the weights
+    "refine_iterations": 5,  # robust pose polish after MAGSAC++/RANSAC (0 = off; 5 saturates on training pairs)
 }
 
 
@@ -67,13 +68,18 @@ def _filtered(c: Correspondences, mask: np.ndarray) -> Selection:
 
 
 def _robust(c: Correspondences, keep: np.ndarray, method: str, cfg: dict) -> Selection:
+    """A robust fit on the kept matches, its pose polished on the same matches (sigma = the inlier threshold)."""
     keep = np.asarray(keep, bool)
     mask = np.zeros(len(c), bool)
-    est = estimate_essential(c.x0[keep], c.x1[keep], method, cfg["threshold_px"] / c.focal)
+    threshold = cfg["threshold_px"] / c.focal
+    x0, x1 = c.x0[keep], c.x1[keep]
+    est = estimate_essential(x0, x1, method, threshold)
     if est is None:
         return Selection(mask, None, None)
     E, inl = est
-    pose = recover_pose(E, c.x0[keep], c.x1[keep], inl)
+    pose = recover_pose(E, x0, x1, inl)
+    if pose is not None:
+        pose = refine_pose(pose, x0, x1, threshold, cfg["refine_iterations"])
     mask[np.flatnonzero(keep)[inl]] = True
     return Selection(mask, None, pose)
 

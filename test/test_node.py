@@ -280,13 +280,14 @@ def test_parameters_from_yaml_and_command_line(ros, tmp_path):
     seq = Sequence.load(data_dir("kitti-07"))
     yaml_file = tmp_path / "p.yaml"
     yaml_file.write_text("/**:\n  ros__parameters:\n    max_keypoints: 500\n    score_threshold: 0.7\n    qos: reliable\n"
-                         "    pose_threshold_px: 0.8\n")
+                         "    pose_threshold_px: 0.8\n    pose_refine_iterations: 0\n")
     node = NodeProcess(["--ros-args", "--params-file", str(yaml_file), "-p", "max_keypoints:=300"], ros, tmp_path / "node.log")
     peer = Peer(reliable=True)
     try:
         peer.wait_connected()
-        got = get_params(peer, ["max_keypoints", "score_threshold", "qos", "k", "pose_threshold_px"])
-        assert got == {"max_keypoints": 300, "score_threshold": 0.7, "qos": "reliable", "k": 8, "pose_threshold_px": 0.8}
+        got = get_params(peer, ["max_keypoints", "score_threshold", "qos", "k", "pose_threshold_px", "pose_refine_iterations"])
+        assert got == {"max_keypoints": 300, "score_threshold": 0.7, "qos": "reliable", "k": 8, "pose_threshold_px": 0.8,
+                       "pose_refine_iterations": 0}
         peer.first_frame(kitti_info(seq), image_msg(seq.image(0), 1.0))
         assert 0 < int(peer.diag_values()["keypoints"]) <= 300  # the -p value reached the detector
     finally:
