@@ -183,14 +183,15 @@ def _sampson(E: np.ndarray, h0: np.ndarray, h1: np.ndarray, dE: np.ndarray | Non
 
 
 def refine_pose(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, sigma: float,
-                iterations: int = 10, weights: np.ndarray | None = None) -> PoseEstimate:
+                iterations: int = 5) -> PoseEstimate:
     """Polish (R, t) by Levenberg-Marquardt on the Cauchy-robust Sampson error over all given matches.
 
     A robust estimator's answer comes from its best minimal sample and local optimisation on the
     inliers of one threshold; a smooth robust cost over every candidate match (``sigma`` in
-    normalised units, e.g. the inlier threshold) weighs each by how well it fits and measured
-    +0.4 to +1.4 pose AUC@5 on the validation pairs (see README). Only steps that lower the cost
-    are taken, so the result is never worse than the input by that cost. Mask and inliers are kept.
+    normalised units, e.g. the inlier threshold) weighs each by how well it fits; measured +0.5 to
+    +3.5 pose AUC@5 on the validation pairs (see README). Only steps that lower the cost are taken,
+    so the result is never worse than the input by that cost; a degenerate system (NaN input, a
+    singular step) returns the best pose so far. Mask and inliers are kept.
     """
     x0n, x1n = _checked_pair(x0n, x1n)
     if len(x0n) < MIN_MATCHES or iterations <= 0 or sigma <= 0:
@@ -199,23 +200,27 @@ def refine_pose(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, sigma: flo
     R, t = np.asarray(pose.R, np.float64), np.ravel(pose.t).astype(np.float64)
     t = t / max(np.linalg.norm(t), 1e-12)
     s2 = sigma * sigma
-    q = np.ones(len(x0n)) if weights is None else np.asarray(weights, np.float64).ravel()
 
     def cost(E: np.ndarray) -> float:
-        return float(np.sum(q * np.log1p(_sampson(E, h0, h1)[0] ** 2 / s2)))
+        return float(np.sum(np.log1p(_sampson(E, h0, h1)[0] ** 2 / s2)))
 
     E = skew(t) @ R
     current = cost(E)
+    if not np.isfinite(current):
+        return pose
     lam = 1e-3
     for _ in range(iterations):
         dE, B = _pose_jacobian_basis(R, t)
         r, J = _sampson(E, h0, h1, dE)
-        w = q / (s2 + r * r)  # IRLS weight of the Cauchy loss
+        w = 1.0 / (s2 + r * r)  # IRLS weight of the Cauchy loss
         H = (J * w) @ J.T
         g = (J * w) @ r
         improved = False
         while lam < 1e8:
-            step = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), -g)
+            try:
+                step = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), -g)
+            except np.linalg.LinAlgError:
+                break
             R_new = R @ cv2.Rodrigues(step[:3])[0]
             t_new = t + B.T @ step[3:]
             t_new /= np.linalg.norm(t_new)

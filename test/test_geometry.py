@@ -141,11 +141,13 @@ def test_refine_pose_improves_magsac_on_noisy_matches():
         assert np.array_equal(out.inliers, pose.inliers)
 
 
-def test_refine_pose_leaves_the_pose_alone_when_off_or_underdetermined():
+def test_refine_pose_leaves_the_pose_alone_when_off_underdetermined_or_nan():
     x0, x1, R, t = noisy_with_outliers()
     pose = recover_pose(essential_from_pose(R @ rot([0, 1, 0], 0.5), t), x0, x1)
+    x1_nan = x1.copy()
+    x1_nan[3] = np.nan
     for out in (refine_pose(pose, x0, x1, 1e-3, iterations=0), refine_pose(pose, x0[:7], x1[:7], 1e-3),
-                refine_pose(pose, x0, x1, 0.0)):
+                refine_pose(pose, x0, x1, 0.0), refine_pose(pose, x0, x1_nan, 1e-3)):
         assert out is pose
 
 
