@@ -10,7 +10,7 @@ from nmnet_ros.metrics import prf
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
 from nmnet_ros.pairs import make_pair, to_correspondences
-from nmnet_ros.selectors import DEFAULT_CONFIG, METHODS, build, nmnet_scores
+from nmnet_ros.selectors import DEFAULT_CONFIG, METHODS, build, classic_mask, nmnet_scores
 
 from .conftest import data_dir
 from .test_geometry import robust_cost
@@ -76,6 +76,23 @@ def test_frontend_passes_its_pixel_threshold_to_the_selector():
     assert 8 <= selected[0] < selected[1]
 
 
+def test_frontend_passes_its_refine_iterations_to_the_selector():
+    """The node's pose_refine_iterations goes through Frontend: same frames, same selection, a polished pose."""
+    from nmnet_ros.pipeline import Frontend
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    results = []
+    for it in (0, DEFAULT_CONFIG["refine_iterations"]):
+        fe = Frontend(seq.camera, {"selector": "ratio+magsac", "refine_iterations": it})
+        fe.process(seq.image(10), 0.0)
+        results.append(fe.process(seq.image(11), 0.1))
+    off, on = results
+    assert off.status == on.status == "ok" and np.array_equal(off.mask, on.mask)
+    change = rotation_error_deg(off.pose.R, on.pose.R)
+    print(f"rotation change by the polish in the front end: {change:.4f} deg")
+    assert change > 1e-4
+
+
 def test_score_threshold_trades_recall_for_precision(pairs):
     from nmnet_ros.evaluate import evaluate
 
@@ -118,7 +135,7 @@ def test_pose_refinement_keeps_the_selection_and_lowers_the_robust_cost(pairs):
         c = to_correspondences(p)
         off, ref = select_off(c), select_on(c)
         assert np.array_equal(off.mask, ref.mask)
-        keep = c.mutual & (c.ratio < DEFAULT_CONFIG["ratio"])
+        keep = classic_mask(c)
         sigma = DEFAULT_CONFIG["threshold_px"] / c.focal
         before = robust_cost(off.pose, c.x0[keep], c.x1[keep], sigma)
         after = robust_cost(ref.pose, c.x0[keep], c.x1[keep], sigma)
