@@ -43,7 +43,10 @@ DEFAULT_CONFIG: dict = {
     "detector": "hessian-affine",  # local feature frames (the shipped weights: the kornia reference)
     "label_threshold": LABEL_THRESHOLD,  # inlier when the squared symmetric epipolar distance is below (paper: 1e-4)
     "init": None,  # checkpoint to start from (fine-tuning); None = random initialisation
+    "augment": False,  # label-preserving pair augmentation (see ``draw_augmentation``)
 }
+
+MAX_ROLL_DEG = 10.0  # per-image camera roll drawn from +-this when augmenting
 
 NEIGHBORS = {"nmnet": "compatibility", "nmnet-sp": "spatial"}
 
@@ -64,12 +67,42 @@ def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min
     return out
 
 
-def network_input(pair: PairData, neighbor_kind: str, k: int, sel: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """(1,N,4) normalised coordinates and (1,N,k) neighbour indices of a pair (optionally a subset)."""
+def draw_augmentation(rng: np.random.Generator) -> tuple[bool, bool, float, float]:
+    """(swap the images, mirror both, roll of image 0, roll of image 1 in radians) for one training sample.
+
+    Each is a valid two-view geometry with the same labels: swapping is the reverse motion, a
+    mirror image is the mirrored scene, a roll rotates a camera about its optical axis. All are
+    isometries of the normalised image planes, so symmetric epipolar distances (the labels) are
+    unchanged; the neighbours are not (compatibility is measured in image 0), so they are mined
+    on the augmented keypoints and affine frames.
+    """
+    swap, mirror = rng.random(2) < 0.5
+    roll0, roll1 = np.radians(rng.uniform(-MAX_ROLL_DEG, MAX_ROLL_DEG, 2))
+    return bool(swap), bool(mirror), float(roll0), float(roll1)
+
+
+def _roll(angle: float, mirror: bool) -> np.ndarray:
+    """2x2 map of an image plane: mirror in x (if asked), then rotate by ``angle``."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s], [s, c]]) @ np.diag([-1.0 if mirror else 1.0, 1.0])
+
+
+def network_input(pair: PairData, neighbor_kind: str, k: int, sel: np.ndarray | None = None,
+                  augmentation: tuple[bool, bool, float, float] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(1,N,4) normalised coordinates and (1,N,k) neighbour indices of a pair (optionally a subset, augmented)."""
     x0, x1 = pair.normalized()
     k0, k1, a0, a1 = pair.k0, pair.k1, pair.a0, pair.a1
     if sel is not None:
         x0, x1, k0, k1, a0, a1 = (v[sel] for v in (x0, x1, k0, k1, a0, a1))
+    if augmentation is not None:
+        swap, mirror, roll0, roll1 = augmentation
+        if swap:
+            x0, x1, k0, k1, a0, a1 = x1, x0, k1, k0, a1, a0
+        M0, M1 = _roll(roll0, mirror), _roll(roll1, mirror)
+        c = pair.seq.camera.K[:2, 2]  # rolls turn about the principal point (pixels ~ normalised up to fx/fy)
+        x0, x1 = x0 @ M0.T, x1 @ M1.T
+        k0, k1 = (k0 - c) @ M0.T + c, (k1 - c) @ M1.T + c
+        a0, a1 = M0 @ a0, M1 @ a1
     nb = mine_neighbors(neighbor_kind, k0, a0, k1, a1, k)
     x = torch.from_numpy(np.concatenate([x0, x1], 1).astype(np.float32))[None]
     return x, torch.from_numpy(nb)[None]
@@ -198,9 +231,10 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
             batch = []  # drawn in order from the seeded generator, whatever the number of workers
             for pi in rng.integers(len(train_pairs), size=c["batch"]):
                 n = len(train_pairs[pi].labels)
-                batch.append((train_pairs[pi], rng.choice(n, size=c["num_corr"], replace=n < c["num_corr"])))
-            inputs = list(pool.map(lambda b: network_input(b[0], kind, model.config["k"], b[1]), batch))
-            ys = [torch.from_numpy(p.labels[sel].astype(np.float32))[None] for p, sel in batch]
+                sel = rng.choice(n, size=c["num_corr"], replace=n < c["num_corr"])
+                batch.append((train_pairs[pi], sel, draw_augmentation(rng) if c["augment"] else None))
+            inputs = list(pool.map(lambda b: network_input(b[0], kind, model.config["k"], b[1], b[2]), batch))
+            ys = [torch.from_numpy(p.labels[sel].astype(np.float32))[None] for p, sel, _ in batch]
             logits = model(torch.cat([x for x, _ in inputs]).to(device), torch.cat([nb for _, nb in inputs]).to(device))
             loss = balanced_bce(logits, torch.cat(ys).to(device))
             opt.zero_grad()
@@ -250,6 +284,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="inlier label: squared symmetric epipolar distance below this, normalised coordinates")
     p.add_argument("--init", type=Path, default=None, help="checkpoint to start from (fine-tuning)")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder (default ~/.cache/nmnet_ros)")
+    p.add_argument("--augment", action="store_true",
+                   help=f"augment training pairs: swap the images, mirror, roll each camera by up to {MAX_ROLL_DEG:g} degrees")
 
 
 def parse_gaps(text: str) -> tuple[int, ...]:
@@ -263,7 +299,7 @@ def parse_gaps(text: str) -> tuple[int, ...]:
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet train``."""
     keys = ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr", "device", "workers",
-            "detector", "label_threshold")
+            "detector", "label_threshold", "augment")
     cfg = {k: getattr(args, k) for k in keys}
     cfg["init"] = str(args.init) if args.init else None
     cfg["gaps"] = parse_gaps(args.gaps)

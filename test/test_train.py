@@ -8,8 +8,10 @@ import torch
 
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
+from nmnet_ros.geometry import essential_from_pose, sym_epipolar_sq
 from nmnet_ros.model import load_model, weights_dir
-from nmnet_ros.train import balanced_bce, load_pairs, train
+from nmnet_ros.neighbors import mine_neighbors
+from nmnet_ros.train import balanced_bce, draw_augmentation, load_pairs, network_input, train
 
 from .conftest import data_dir
 
@@ -98,3 +100,60 @@ def test_label_threshold_out_of_range_is_a_clear_error(tmp_path, threshold):
     with pytest.raises(ValueError, match="--label-threshold must be in"):
         train([seq], [seq], tmp_path, {"label_threshold": threshold}, cache_dir=tmp_path / "cache")
     assert not any(tmp_path.iterdir())
+
+
+def _fountain_pair(tmp_path):
+    cache = FeatureCache(make_detector("hessian-affine-fast"), tmp_path)
+    return load_pairs([f"{data_dir('strecha-fountain-p11')}:0-1"], cache, (1,), 5, log=lambda _: None)[0]
+
+
+def _plane_map(mirror: bool, roll: float) -> np.ndarray:
+    """3x3 map of homogeneous normalised points: mirror in x, then roll (what the augmentation means)."""
+    c, s = np.cos(roll), np.sin(roll)
+    H = np.eye(3)
+    H[:2, :2] = np.array([[c, -s], [s, c]]) @ np.diag([-1.0 if mirror else 1.0, 1.0])
+    return H
+
+
+def test_augmentation_keeps_the_labels(tmp_path):
+    pair = _fountain_pair(tmp_path)
+    E = essential_from_pose(pair.R, pair.t)
+    x0, x1 = pair.normalized()
+    d = sym_epipolar_sq(E, x0, x1)
+    rng = np.random.default_rng(3)
+    drawn = [draw_augmentation(rng) for _ in range(8)]
+    assert {a[0] for a in drawn} == {False, True} and {a[1] for a in drawn} == {False, True}  # both kinds occur
+    for aug in drawn:
+        swap, mirror, roll0, roll1 = aug
+        assert max(abs(roll0), abs(roll1)) <= np.radians(10.0)
+        x, _ = network_input(pair, "compatibility", 8, augmentation=aug)
+        xa0, xa1 = x[0, :, :2].double().numpy(), x[0, :, 2:].double().numpy()
+        # the augmented points satisfy the correspondingly mapped geometry with the same distances
+        Es = E.T if swap else E
+        Ea = _plane_map(mirror, roll1) @ Es @ _plane_map(mirror, roll0).T
+        da = sym_epipolar_sq(Ea, xa0, xa1)
+        np.testing.assert_allclose(da, d, rtol=1e-3, atol=1e-9)
+        assert not np.allclose(xa0, x0, atol=1e-4)  # the input did change
+
+
+def test_augmentation_mines_neighbours_on_the_augmented_frames(tmp_path):
+    pair = _fountain_pair(tmp_path)
+    _, nb = network_input(pair, "compatibility", 8)
+    _, nb_id = network_input(pair, "compatibility", 8, augmentation=(False, False, 0.0, 0.0))
+    _, nb_swap = network_input(pair, "compatibility", 8, augmentation=(True, False, 0.0, 0.0))
+    assert torch.equal(nb, nb_id)
+    swapped = mine_neighbors("compatibility", pair.k1, pair.a1, pair.k0, pair.a0, 8)
+    assert np.array_equal(nb_swap[0].numpy(), swapped) and not torch.equal(nb_swap, nb)
+
+
+def test_training_with_augmentation_is_seeded_and_differs(tmp_path):
+    seq = str(data_dir("strecha-fountain-p11"))
+    cfg = {"epochs": 1, "steps_per_epoch": 2, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1}
+    spec_train, spec_val, cache = [f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path / "cache"
+
+    def loss(out: str, augment: bool) -> float:
+        train(spec_train, spec_val, tmp_path / out, {**cfg, "augment": augment}, cache_dir=cache)
+        return json.loads((tmp_path / out / "history.json").read_text())[0]["loss"]
+
+    a, b = loss("a", True), loss("b", True)
+    assert a == b and a != loss("plain", False)
