@@ -5,6 +5,7 @@ paper's setting); labels are the squared symmetric epipolar distance < 1e-4 (nor
 Each step samples ``batch`` pairs and ``num_corr`` correspondences per pair, mines the
 neighbours on that sample, and minimises balanced BCE (positives weighted by N_neg/N_pos).
 The best checkpoint by validation F-measure is kept; ``last.pt`` makes a run resumable.
+``--augment`` swaps, mirrors and rolls the training pairs (same labels) against overfitting.
 """
 
 from __future__ import annotations
@@ -73,8 +74,8 @@ def draw_augmentation(rng: np.random.Generator) -> tuple[bool, bool, float, floa
     Each is a valid two-view geometry with the same labels: swapping is the reverse motion, a
     mirror image is the mirrored scene, a roll rotates a camera about its optical axis. All are
     isometries of the normalised image planes, so symmetric epipolar distances (the labels) are
-    unchanged; the neighbours are not (compatibility is measured in image 0), so they are mined
-    on the augmented keypoints and affine frames.
+    unchanged; the neighbours are not (a swap or roll changes about half of the compatibility
+    neighbour sets, measured), so they are mined on the augmented keypoints and affine frames.
     """
     swap, mirror = rng.random(2) < 0.5
     roll0, roll1 = np.radians(rng.uniform(-MAX_ROLL_DEG, MAX_ROLL_DEG, 2))
