@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,3 +42,14 @@ def cache(detector, tmp_path_factory):
     # NMNET_TEST_CACHE reuses a developer's feature cache between runs; CI starts empty.
     root = os.environ.get("NMNET_TEST_CACHE") or tmp_path_factory.mktemp("features")
     return FeatureCache(detector, Path(root))
+
+
+def robust_cost(pose, x0: np.ndarray, x1: np.ndarray, sigma: float) -> float:
+    """The Cauchy-robust Sampson cost refine_pose minimises, written out independently."""
+    from nmnet_ros.geometry import skew
+
+    E = skew(pose.t / np.linalg.norm(pose.t)) @ pose.R
+    h0, h1 = np.c_[x0, np.ones(len(x0))], np.c_[x1, np.ones(len(x1))]
+    Ex0, Etx1 = h0 @ E.T, h1 @ E
+    r2 = np.sum(h1 * Ex0, 1) ** 2 / (Ex0[:, 0] ** 2 + Ex0[:, 1] ** 2 + Etx1[:, 0] ** 2 + Etx1[:, 1] ** 2)
+    return float(np.sum(np.log1p(r2 / sigma**2)))

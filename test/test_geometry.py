@@ -21,7 +21,7 @@ from nmnet_ros.geometry import (
 )
 from nmnet_ros.pairs import make_pair
 
-from .conftest import data_dir
+from .conftest import data_dir, robust_cost
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 
@@ -96,15 +96,6 @@ def noisy_with_outliers(seed=0, n=600, noise_px=0.3, outliers=0.3, f=500.0):
     bad = rng.random(n) < outliers
     x1[bad] += rng.normal(0, 40 / f, (bad.sum(), 2))
     return x0, x1, R, t
-
-
-def robust_cost(pose, x0, x1, sigma):
-    """The Cauchy-robust Sampson cost refine_pose minimises, written out independently."""
-    E = skew(pose.t / np.linalg.norm(pose.t)) @ pose.R
-    h0, h1 = np.c_[x0, np.ones(len(x0))], np.c_[x1, np.ones(len(x1))]
-    Ex0, Etx1 = h0 @ E.T, h1 @ E
-    r2 = np.sum(h1 * Ex0, 1) ** 2 / (Ex0[:, 0] ** 2 + Ex0[:, 1] ** 2 + Etx1[:, 0] ** 2 + Etx1[:, 1] ** 2)
-    return float(np.sum(np.log1p(r2 / sigma**2)))
 
 
 def test_refine_pose_recovers_a_perturbed_pose_despite_outliers():

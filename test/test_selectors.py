@@ -12,8 +12,7 @@ from nmnet_ros.model_fast import FastNMNet
 from nmnet_ros.pairs import make_pair, to_correspondences
 from nmnet_ros.selectors import DEFAULT_CONFIG, METHODS, build, classic_mask, nmnet_scores
 
-from .conftest import data_dir
-from .test_geometry import robust_cost
+from .conftest import data_dir, robust_cost
 
 
 @pytest.fixture(scope="module")
