@@ -11,7 +11,7 @@ from nmnet_ros.detectors import make_detector
 from nmnet_ros.geometry import essential_from_pose, sym_epipolar_sq
 from nmnet_ros.model import load_model, weights_dir
 from nmnet_ros.neighbors import mine_neighbors
-from nmnet_ros.train import balanced_bce, draw_augmentation, load_pairs, network_input, train
+from nmnet_ros.train import MIN_THINNED_RATIO, balanced_bce, draw_augmentation, load_pairs, network_input, sample_correspondences, train
 
 from .conftest import data_dir
 
@@ -94,12 +94,16 @@ def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
     assert not (tmp_path / "out").exists()  # refused before any work
 
 
-@pytest.mark.parametrize("threshold", [0.0, -1e-4, 2.0])
-def test_label_threshold_out_of_range_is_a_clear_error(tmp_path, threshold):
+@pytest.mark.parametrize(("key", "value", "match"), [("label_threshold", 0.0, "--label-threshold must be in"),
+                                                     ("label_threshold", -1e-4, "--label-threshold must be in"),
+                                                     ("label_threshold", 2.0, "--label-threshold must be in"),
+                                                     ("thin_inliers", -0.1, "--thin-inliers is a probability in"),
+                                                     ("thin_inliers", 1.5, "--thin-inliers is a probability in")])
+def test_option_out_of_range_is_a_clear_error(tmp_path, key, value, match):
     seq = str(data_dir("strecha-fountain-p11"))
-    with pytest.raises(ValueError, match="--label-threshold must be in"):
-        train([seq], [seq], tmp_path, {"label_threshold": threshold}, cache_dir=tmp_path / "cache")
-    assert not any(tmp_path.iterdir())
+    with pytest.raises(ValueError, match=match):
+        train([seq], [seq], tmp_path, {key: value}, cache_dir=tmp_path / "cache")
+    assert not any(tmp_path.iterdir())  # refused before any work
 
 
 def _fountain_pair(tmp_path):
@@ -146,14 +150,48 @@ def test_augmentation_mines_neighbours_on_the_augmented_frames(tmp_path):
     assert np.array_equal(nb_swap[0].numpy(), swapped) and not torch.equal(nb_swap, nb)
 
 
-def test_training_with_augmentation_is_seeded_and_differs(tmp_path):
+@pytest.mark.parametrize(("key", "on", "off"), [("augment", True, False), ("thin_inliers", 1.0, 0.0)])
+def test_training_option_is_seeded_and_changes_the_batches(tmp_path, key, on, off):
     seq = str(data_dir("strecha-fountain-p11"))
     cfg = {"epochs": 1, "steps_per_epoch": 2, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1}
     spec_train, spec_val, cache = [f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path / "cache"
 
-    def loss(out: str, augment: bool) -> float:
-        train(spec_train, spec_val, tmp_path / out, {**cfg, "augment": augment}, cache_dir=cache)
+    def loss(out: str, value) -> float:
+        train(spec_train, spec_val, tmp_path / out, {**cfg, key: value}, cache_dir=cache)
         return json.loads((tmp_path / out / "history.json").read_text())[0]["loss"]
 
-    a, b = loss("a", True), loss("b", True)
-    assert a == b and a != loss("plain", False)
+    a, b = loss("a", on), loss("b", on)
+    assert a == b and a != loss("plain", off)
+    assert load_model(tmp_path / "a" / "best.pt").config["neighbors"] == "compatibility"
+
+
+def test_sampling_without_thinning_is_the_plain_uniform_draw():
+    labels = np.random.default_rng(0).random(2000) < 0.36
+    a, b = np.random.default_rng(5), np.random.default_rng(5)
+    for _ in range(5):  # the same stream as before --thin-inliers existed: earlier runs reproduce
+        assert np.array_equal(sample_correspondences(a, labels, 1000), b.choice(2000, size=1000, replace=False))
+    assert a.random() == b.random()
+
+
+def test_thinning_lowers_the_inlier_ratio_with_real_outliers():
+    labels = np.random.default_rng(0).random(2000) < 0.36
+    rng = np.random.default_rng(1)
+    ratios = []
+    for _ in range(200):
+        sel = sample_correspondences(rng, labels, 1000, thin=1.0)
+        assert sel.shape == (1000,) and len(np.unique(sel)) == 1000  # no duplicates: 2000 to draw from
+        ratios.append(labels[sel].mean())
+    ratios = np.array(ratios)
+    assert ratios.min() >= MIN_THINNED_RATIO - 1e-3 and ratios.max() <= labels.mean() + 1e-3
+    assert ratios.min() < 0.08 and ratios.max() > 0.3  # spread over the whole range, not one value
+    # at probability 1/2 about half the samples keep the pair's own ratio (within sampling noise)
+    half = [labels[sample_correspondences(rng, labels, 1000, thin=0.5)].mean() for _ in range(400)]
+    share = np.mean(np.abs(np.array(half) - labels.mean()) < 0.03)
+    assert 0.4 < share < 0.75  # uniform draws near the pair's ratio add a little to the unthinned half
+
+
+def test_thinning_leaves_pairs_already_below_the_floor_alone():
+    labels = np.zeros(500, bool)
+    labels[:10] = True  # 2 %
+    a, b = np.random.default_rng(2), np.random.default_rng(2)
+    assert np.array_equal(sample_correspondences(a, labels, 300, thin=1.0), b.choice(500, size=300, replace=False))
