@@ -71,6 +71,34 @@ def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] 
     return {"metrics": out, "errors": errors}
 
 
+def paired_auc_difference(errors: np.ndarray, reference: np.ndarray, threshold: float = 5.0,
+                          resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """AUC@threshold of ``errors`` minus that of ``reference`` (same pairs, percent) with a 95 % interval.
+
+    A paired bootstrap over the pairs: each resample draws pairs with replacement and scores both
+    methods on the same draw, so a difference decided by one or two hard pairs shows as an
+    interval that straddles zero.
+    """
+    errors, reference = np.asarray(errors, np.float64), np.asarray(reference, np.float64)
+    if errors.shape != reference.shape or errors.ndim != 1 or errors.size == 0:
+        raise ValueError(f"need the same non-empty set of pairs, got {errors.shape} and {reference.shape}")
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(len(errors), size=(resamples, len(errors)))
+    delta = np.array([pose_auc(errors[d], (threshold,))[0] - pose_auc(reference[d], (threshold,))[0] for d in draws])
+    lo, hi = np.percentile(100 * delta, [2.5, 97.5])
+    return 100 * (pose_auc(errors, (threshold,))[0] - pose_auc(reference, (threshold,))[0]), float(lo), float(hi)
+
+
+def difference_lines(errors: dict[str, np.ndarray], reference: str) -> list[str]:
+    """One line per method: its AUC@5 minus the reference's, with the paired-bootstrap interval."""
+    lines = [f"AUC@5 minus {reference}'s, same {len(errors[reference])} pairs (paired bootstrap, 95 % interval):"]
+    for name, e in errors.items():
+        if name != reference:
+            d, lo, hi = paired_auc_difference(e, errors[reference])
+            lines.append(f"  {name}: {d:+.1f} [{lo:+.1f}, {hi:+.1f}]")
+    return lines
+
+
 def markdown_table(metrics: dict) -> str:
     """The results as a markdown table."""
     lines = ["| method | P | R | F | AUC@5 | AUC@10 | AUC@20 | med. rot ° | med. trans ° | ms/pair |",
@@ -120,6 +148,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="MAGSAC++/RANSAC inlier threshold in pixels for every robust method")
     p.add_argument("--score-threshold", type=float, default=None,
                    help="NM-Net probability cut for every nmnet method (default: the one calibrated with the weights)")
+    p.add_argument("--reference", default="ratio+magsac",
+                   help="method the others' AUC@5 is compared with (paired bootstrap); skipped when not run")
     p.add_argument("--refine-iterations", type=int, default=SELECTOR_DEFAULTS["refine_iterations"],
                    help="robust pose polish after every MAGSAC++/RANSAC fit (0 = the plain OpenCV estimate)")
 
@@ -130,6 +160,8 @@ def main(args: argparse.Namespace) -> int:
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise ValueError(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    if args.reference not in METHODS:
+        raise ValueError(f"--reference {args.reference!r} is not a method; choose from {', '.join(METHODS)}")
     if args.score_threshold is not None and not 0.0 <= args.score_threshold < 1.0:
         raise ValueError(f"--score-threshold must be in [0, 1), got {args.score_threshold}")
     if not args.threshold_px > 0:
@@ -145,6 +177,8 @@ def main(args: argparse.Namespace) -> int:
                                              "refine_iterations": args.refine_iterations})
     print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%\n")
     print(markdown_table(res["metrics"]))
+    if args.reference in res["errors"] and len(res["errors"]) > 1:
+        print("\n" + "\n".join(difference_lines(res["errors"], args.reference)))
     plot_curves(res["errors"], args.plot)
     print(f"\nplot: {args.plot}")
     if args.json:

@@ -116,6 +116,12 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     keys = {"precision", "recall", "f1", "auc5", "auc10", "auc20", "median_rot_deg", "median_trans_deg", "pairs", "sec_per_pair"}
     assert set(res) == {"ratio", "nmnet", "oracle"} and all(set(v) == keys for v in res.values())
     assert res["oracle"]["precision"] == 100.0 and res["nmnet"]["pairs"] == 7  # 4 gap-1 + 3 gap-2 pairs in 120-124
+    assert "ratio+magsac's" not in run.stdout  # the default reference was not run: no comparison
+    ref = subprocess.run(cmd + ["--reference", "oracle"], capture_output=True, text=True)
+    assert ref.returncode == 0 and "AUC@5 minus oracle's, same 7 pairs" in ref.stdout
+    assert "  nmnet: " in ref.stdout and "  ratio: " in ref.stdout and "  oracle: " not in ref.stdout
+    bad = subprocess.run(cmd + ["--reference", "sift"], capture_output=True, text=True)
+    assert bad.returncode != 0 and "--reference 'sift' is not a method" in bad.stderr
     bad = subprocess.run(cmd + ["--score-threshold", "1.5"], capture_output=True, text=True)
     assert bad.returncode != 0 and "--score-threshold must be in [0, 1)" in bad.stderr
     bad = subprocess.run(cmd + ["--threshold-px", "0"], capture_output=True, text=True)

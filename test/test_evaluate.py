@@ -1,0 +1,43 @@
+"""The paired bootstrap behind ``nmnet eval --reference``: differences with honest intervals."""
+
+import numpy as np
+import pytest
+
+from nmnet_ros.evaluate import difference_lines, paired_auc_difference
+from nmnet_ros.geometry import pose_auc
+
+
+def test_identical_methods_differ_by_nothing():
+    e = np.random.default_rng(0).exponential(2.0, 100)
+    assert paired_auc_difference(e, e.copy()) == (0.0, 0.0, 0.0)
+
+
+def test_a_uniformly_better_method_has_an_interval_above_zero():
+    ref = np.random.default_rng(1).exponential(2.0, 200)
+    d, lo, hi = paired_auc_difference(ref / 2, ref)
+    assert d == pytest.approx(100 * (pose_auc(ref / 2, (5.0,))[0] - pose_auc(ref, (5.0,))[0]))
+    assert 0 < lo < d < hi
+
+
+def test_a_difference_decided_by_one_pair_straddles_zero():
+    ref = np.random.default_rng(2).exponential(1.0, 100)
+    worse = ref.copy()
+    worse[7] = 180.0  # one failure more, out of 100 pairs
+    d, lo, hi = paired_auc_difference(worse, ref)
+    assert d < 0 and lo < d and hi >= 0  # a third of the resamples miss that pair
+
+
+def test_mismatched_pairs_are_refused():
+    with pytest.raises(ValueError, match="same non-empty set of pairs"):
+        paired_auc_difference(np.ones(5), np.ones(6))
+    with pytest.raises(ValueError, match="same non-empty set of pairs"):
+        paired_auc_difference(np.ones(0), np.ones(0))
+
+
+def test_lines_name_every_other_method():
+    e = {"a": np.ones(10), "ref": np.full(10, 2.0), "b": np.full(10, 3.0)}
+    lines = difference_lines(e, "ref")
+    assert lines[0].startswith("AUC@5 minus ref's, same 10 pairs")
+    assert [ln.split(":")[0].strip() for ln in lines[1:]] == ["a", "b"]
+    gain = 100 * (pose_auc(e["a"], (5.0,))[0] - pose_auc(e["ref"], (5.0,))[0])  # 1 deg against 2 deg everywhere
+    assert gain > 15 and lines[1].split(":")[1].strip().startswith(f"{gain:+.1f} [{gain:+.1f}, {gain:+.1f}]")
