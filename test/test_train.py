@@ -11,7 +11,17 @@ from nmnet_ros.detectors import make_detector
 from nmnet_ros.geometry import essential_from_pose, sym_epipolar_sq
 from nmnet_ros.model import load_model, weights_dir
 from nmnet_ros.neighbors import mine_neighbors
-from nmnet_ros.train import MIN_THINNED_RATIO, balanced_bce, draw_augmentation, load_pairs, network_input, sample_correspondences, train
+from nmnet_ros.train import (
+    MIN_THINNED_RATIO,
+    balanced_bce,
+    draw_augmentation,
+    draw_turn,
+    load_pairs,
+    network_input,
+    sample_correspondences,
+    train,
+    turn_camera,
+)
 
 from .conftest import data_dir
 
@@ -98,7 +108,9 @@ def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
                                                      ("label_threshold", -1e-4, "--label-threshold must be in"),
                                                      ("label_threshold", 2.0, "--label-threshold must be in"),
                                                      ("thin_inliers", -0.1, "--thin-inliers is a probability in"),
-                                                     ("thin_inliers", 1.5, "--thin-inliers is a probability in")])
+                                                     ("thin_inliers", 1.5, "--thin-inliers is a probability in"),
+                                                     ("turn_deg", -5.0, "--turn-deg must be in"),
+                                                     ("turn_deg", 90.0, "--turn-deg must be in")])
 def test_option_out_of_range_is_a_clear_error(tmp_path, key, value, match):
     seq = str(data_dir("strecha-fountain-p11"))
     with pytest.raises(ValueError, match=match):
@@ -150,7 +162,50 @@ def test_augmentation_mines_neighbours_on_the_augmented_frames(tmp_path):
     assert np.array_equal(nb_swap[0].numpy(), swapped) and not torch.equal(nb_swap, nb)
 
 
-@pytest.mark.parametrize(("key", "on", "off"), [("augment", True, False), ("thin_inliers", 1.0, 0.0)])
+def test_turn_is_a_rotation_of_the_second_camera(tmp_path):
+    pair = _fountain_pair(tmp_path)
+    k1, a1, x1, labels, inside = turn_camera(pair, np.eye(3))
+    np.testing.assert_allclose(k1, pair.k1, atol=1e-9)
+    np.testing.assert_allclose(a1, pair.a1, atol=1e-9)
+    assert np.array_equal(labels, pair.labels) and inside.all()
+
+    turn = draw_turn(np.random.default_rng(1), 20.0)
+    angle = np.degrees(np.arccos((np.trace(turn) - 1) / 2))
+    assert 0 < angle <= 20.0 and abs(turn[2, 2] - np.cos(np.radians(angle))) < 1e-9  # the axis lies in the image plane
+    k1, a1, x1, labels, inside = turn_camera(pair, turn)
+    x0, x1_orig = pair.normalized()
+    # the turned rays are the original ones rotated, and the turned pose's epipolar residual is the original's
+    u = np.c_[x1_orig, np.ones(len(x1_orig))] @ turn.T
+    np.testing.assert_allclose(x1, u[:, :2] / u[:, 2:], atol=1e-12)
+    E, E_turned = essential_from_pose(pair.R, pair.t), essential_from_pose(turn @ pair.R, turn @ pair.t)
+    r = np.sum(np.c_[x1_orig, np.ones(len(x0))] * (np.c_[x0, np.ones(len(x0))] @ E.T), 1)
+    r_turned = np.sum(np.c_[x1, np.ones(len(x0))] * (np.c_[x0, np.ones(len(x0))] @ E_turned.T), 1)
+    np.testing.assert_allclose(r_turned * u[:, 2], r, atol=1e-9)
+    assert np.array_equal(labels, sym_epipolar_sq(E_turned, x0, x1) < 1e-4)
+    assert 0.9 < (labels == pair.labels).mean() < 1.0  # relabelled, not copied: a few distances cross the threshold
+    # the affine frames follow the rotation homography's local linear map (finite differences)
+    K = pair.seq.camera.K
+    H = K @ turn @ np.linalg.inv(K)
+
+    def warp(p: np.ndarray) -> np.ndarray:
+        h = np.c_[p, np.ones(len(p))] @ H.T
+        return h[:, :2] / h[:, 2:]
+
+    eps = 1e-3
+    for axis in range(2):
+        d = np.zeros(2)
+        d[axis] = eps
+        np.testing.assert_allclose((warp(pair.k1 + d) - warp(pair.k1 - d)) / (2 * eps),
+                                   (a1 @ np.linalg.inv(pair.a1))[:, :, axis], atol=1e-5)
+    # matches turned out of the image are flagged; those kept lie inside it
+    w, h = pair.seq.camera.width, pair.seq.camera.height
+    assert 0.2 < inside.mean() < 1.0
+    assert (k1[inside] >= 0).all() and (k1[inside, 0] < w).all() and (k1[inside, 1] < h).all()
+    assert not ((k1[~inside] >= 0).all(1) & (k1[~inside, 0] < w) & (k1[~inside, 1] < h)).any()
+
+
+@pytest.mark.parametrize(("key", "on", "off"), [("augment", True, False), ("thin_inliers", 1.0, 0.0),
+                                                ("turn_deg", 25.0, 0.0)])
 def test_training_option_is_seeded_and_changes_the_batches(tmp_path, key, on, off):
     seq = str(data_dir("strecha-fountain-p11"))
     cfg = {"epochs": 1, "steps_per_epoch": 2, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1}
