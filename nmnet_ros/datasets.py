@@ -137,8 +137,13 @@ def epipolar_labels(seq: Sequence, i: int, j: int, k0: np.ndarray, k1: np.ndarra
                     threshold: float = LABEL_THRESHOLD) -> tuple[np.ndarray, np.ndarray]:
     """Ground-truth inlier labels and squared symmetric epipolar distances for pixel matches k0 (frame i) <-> k1 (frame j)."""
     R, t = seq.relative_pose(i, j)
-    E = essential_from_pose(R, t)
-    d = sym_epipolar_sq(E, seq.camera.normalize(k0), seq.camera.normalize(k1))
+    return pose_labels(R, t, seq.camera.normalize(k0), seq.camera.normalize(k1), threshold)
+
+
+def pose_labels(R: np.ndarray, t: np.ndarray, x0: np.ndarray, x1: np.ndarray,
+                threshold: float = LABEL_THRESHOLD) -> tuple[np.ndarray, np.ndarray]:
+    """Inlier labels and squared symmetric epipolar distances of normalised matches under the pose (R, t)."""
+    d = sym_epipolar_sq(essential_from_pose(R, t), x0, x1)
     return d < threshold, d
 
 

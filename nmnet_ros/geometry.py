@@ -89,6 +89,21 @@ def sym_epipolar_sq(E: np.ndarray, x0: np.ndarray, x1: np.ndarray) -> np.ndarray
     return num * (1.0 / (l1[:, 0] ** 2 + l1[:, 1] ** 2 + 1e-15) + 1.0 / (l0[:, 0] ** 2 + l0[:, 1] ** 2 + 1e-15))
 
 
+def apply_homography(H: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N,2) points mapped by the 3x3 homography H, and their homogeneous scale w (w <= 0: behind)."""
+    p = np.c_[pts, np.ones(len(pts))] @ np.asarray(H, np.float64).T
+    w = p[:, 2]
+    return p[:, :2] / np.where(np.abs(w) > 1e-12, w, 1.0)[:, None], w
+
+
+def homography_jacobian(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """d(H(x))/dx at each point, (N,2,2): how H maps a local affine frame there."""
+    H = np.asarray(H, np.float64)
+    p = np.c_[pts, np.ones(len(pts))] @ H.T
+    w = p[:, 2, None, None]
+    return (H[None, :2, :2] * w - p[:, :2, None] * H[None, 2, None, :2]) / w**2
+
+
 @dataclass
 class PoseEstimate:
     """Relative pose from two views: x1 = R x0 + t, |t| = 1 (scale unknown)."""

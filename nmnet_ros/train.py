@@ -24,9 +24,9 @@ import numpy as np
 import torch
 
 from .cache import FeatureCache
-from .datasets import LABEL_THRESHOLD, Sequence
+from .datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DETECTORS, make_detector
-from .geometry import essential_from_pose, sym_epipolar_sq
+from .geometry import apply_homography, homography_jacobian
 from .metrics import prf
 from .model import NMNet, WeightsError, load_model
 from .neighbors import mine_neighbors
@@ -129,21 +129,32 @@ def turn_camera(pair: PairData, turn: np.ndarray,
     frames 130-142 rotate 32 degrees in 10 frames), which the training pairs rarely show with few
     inliers. Pinhole: distortion is taken as already removed (true for the datasets trained on).
     """
-    K = pair.seq.camera.K
-    x0, x1 = pair.normalized()
-    u = np.c_[x1, np.ones(len(x1))] @ turn.T
-    front = u[:, 2] > 1e-6
-    x1t = u[:, :2] / np.where(front, u[:, 2], 1.0)[:, None]
-    k1t = x1t * np.diag(K)[:2] + K[:2, 2]
-    H = K @ turn @ np.linalg.inv(K)
-    h = np.c_[pair.k1, np.ones(len(x1))] @ H.T
-    J = (H[None, :2, :2] * h[:, 2, None, None] - h[:, :2, None] * H[None, 2, None, :2]) / h[:, 2, None, None] ** 2
-    labels = sym_epipolar_sq(essential_from_pose(turn @ pair.R, turn @ pair.t), x0, x1t) < label_threshold
-    w, hgt = pair.seq.camera.width, pair.seq.camera.height
+    camera = pair.seq.camera
+    H = camera.K @ turn @ np.linalg.inv(camera.K)
+    k1, w = apply_homography(H, pair.k1)  # w is the turned ray's depth (K's last row is 0 0 1)
+    x1 = camera.normalize(k1)
+    labels, _ = pose_labels(turn @ pair.R, turn @ pair.t, pair.normalized()[0], x1, label_threshold)
+    front = w > 1e-6
     inside = front.copy()
-    if w > 0 and hgt > 0:
-        inside &= (k1t[:, 0] >= 0) & (k1t[:, 0] < w) & (k1t[:, 1] >= 0) & (k1t[:, 1] < hgt)
-    return k1t, J @ pair.a1, x1t, labels & front, inside
+    if camera.width > 0 and camera.height > 0:
+        inside &= (k1[:, 0] >= 0) & (k1[:, 0] < camera.width) & (k1[:, 1] >= 0) & (k1[:, 1] < camera.height)
+    return k1, homography_jacobian(H, pair.k1) @ pair.a1, x1, labels & front, inside
+
+
+def draw_sample(rng: np.random.Generator, pair: PairData, c: dict) -> tuple[np.ndarray, tuple | None, tuple | None, np.ndarray]:
+    """One training sample of a pair: (match indices, augmentation, turned (k1, a1, x1) or None, their labels).
+
+    Draws in a fixed order from ``rng`` (turn, matches, augmentation), each only when its option
+    is on, so runs without an option draw the same stream as before it existed.
+    """
+    labels, turned, pool = pair.labels, None, None
+    if c["turn_deg"] > 0:
+        k1, a1, x1, turned_labels, inside = turn_camera(pair, draw_turn(rng, c["turn_deg"]), c["label_threshold"])
+        if turned_labels[inside].sum() >= c["min_inliers"]:  # else turned out of view: the sample stays as it was
+            labels, turned, pool = turned_labels, (k1, a1, x1), np.flatnonzero(inside)
+    drawn = sample_correspondences(rng, labels if pool is None else labels[pool], c["num_corr"], c["thin_inliers"])
+    sel = drawn if pool is None else pool[drawn]
+    return sel, draw_augmentation(rng) if c["augment"] else None, turned, labels[sel]
 
 
 def _roll(angle: float, mirror: bool) -> np.ndarray:
@@ -154,12 +165,15 @@ def _roll(angle: float, mirror: bool) -> np.ndarray:
 
 def network_input(pair: PairData, neighbor_kind: str, k: int, sel: np.ndarray | None = None,
                   augmentation: tuple[bool, bool, float, float] | None = None,
-                  turn: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """(1,N,4) normalised coordinates and (1,N,k) neighbour indices of a pair (optionally a subset, turned, augmented)."""
+                  turned: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(1,N,4) normalised coordinates and (1,N,k) neighbour indices of a pair (optionally turned, a subset, augmented).
+
+    ``turned``: the second view's (k1, a1, x1) from ``turn_camera``, for every match of the pair.
+    """
     x0, x1 = pair.normalized()
     k0, k1, a0, a1 = pair.k0, pair.k1, pair.a0, pair.a1
-    if turn is not None:
-        k1, a1, x1, _, _ = turn_camera(pair, turn)
+    if turned is not None:
+        k1, a1, x1 = turned
     if sel is not None:
         x0, x1, k0, k1, a0, a1 = (v[sel] for v in (x0, x1, k0, k1, a0, a1))
     if augmentation is not None:
@@ -302,16 +316,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         for _ in range(c["steps_per_epoch"]):
             batch = []  # drawn in order from the seeded generator, whatever the number of workers
             for pi in rng.integers(len(train_pairs), size=c["batch"]):
-                pair, labels, turn, sel = train_pairs[pi], train_pairs[pi].labels, None, None
-                if c["turn_deg"] > 0:
-                    turn = draw_turn(rng, c["turn_deg"])
-                    *_, labels, inside = turn_camera(pair, turn, c["label_threshold"])
-                    sel = np.flatnonzero(inside)
-                    if labels[sel].sum() < c["min_inliers"]:  # turned out of view: the sample stays as it was
-                        labels, turn, sel = pair.labels, None, None
-                drawn = sample_correspondences(rng, labels if sel is None else labels[sel], c["num_corr"], c["thin_inliers"])
-                sel = drawn if sel is None else sel[drawn]
-                batch.append((pair, sel, draw_augmentation(rng) if c["augment"] else None, turn, labels[sel]))
+                batch.append((train_pairs[pi], *draw_sample(rng, train_pairs[pi], c)))
             inputs = list(pool.map(lambda b: network_input(b[0], kind, model.config["k"], b[1], b[2], b[3]), batch))
             ys = [torch.from_numpy(b[4].astype(np.float32))[None] for b in batch]
             logits = model(torch.cat([x for x, _ in inputs]).to(device), torch.cat([nb for _, nb in inputs]).to(device))

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from nmnet_ros.features import Features, SiftSimilarity
+from nmnet_ros.geometry import homography_jacobian
 from nmnet_ros.matching import match_descriptors
 
 from .conftest import data_dir
@@ -35,17 +36,6 @@ def test_colour_and_mono_give_features(any_detector):
         assert f.keypoints.shape == (len(f), 2) and f.frames.shape == (len(f), 2, 2)
         assert np.all(np.abs(np.linalg.det(f.frames)) > 0)
         np.testing.assert_allclose(np.linalg.norm(f.descriptors, axis=1), 1.0, atol=1e-4)
-
-
-def homography_jacobian(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """d(H(x))/dx at each point, (N,2,2)."""
-    p = np.c_[pts, np.ones(len(pts))] @ H.T
-    w = p[:, 2]
-    J = np.empty((len(pts), 2, 2))
-    for r in range(2):
-        for c in range(2):
-            J[:, r, c] = (H[r, c] * w - p[:, r] * H[2, c]) / w**2
-    return J
 
 
 def frame_errors(f1: Features, f2: Features, H: np.ndarray):

@@ -8,7 +8,7 @@ import torch
 
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
-from nmnet_ros.geometry import essential_from_pose, sym_epipolar_sq
+from nmnet_ros.geometry import apply_homography, essential_from_pose, sym_epipolar_sq
 from nmnet_ros.model import load_model, weights_dir
 from nmnet_ros.neighbors import mine_neighbors
 from nmnet_ros.train import (
@@ -186,16 +186,11 @@ def test_turn_is_a_rotation_of_the_second_camera(tmp_path):
     # the affine frames follow the rotation homography's local linear map (finite differences)
     K = pair.seq.camera.K
     H = K @ turn @ np.linalg.inv(K)
-
-    def warp(p: np.ndarray) -> np.ndarray:
-        h = np.c_[p, np.ones(len(p))] @ H.T
-        return h[:, :2] / h[:, 2:]
-
     eps = 1e-3
     for axis in range(2):
         d = np.zeros(2)
         d[axis] = eps
-        np.testing.assert_allclose((warp(pair.k1 + d) - warp(pair.k1 - d)) / (2 * eps),
+        np.testing.assert_allclose((apply_homography(H, pair.k1 + d)[0] - apply_homography(H, pair.k1 - d)[0]) / (2 * eps),
                                    (a1 @ np.linalg.inv(pair.a1))[:, :, axis], atol=1e-5)
     # matches turned out of the image are flagged; those kept lie inside it
     w, h = pair.seq.camera.width, pair.seq.camera.height
