@@ -127,7 +127,7 @@ def turn_camera(pair: PairData, turn: np.ndarray,
     keypoints still fall inside the image and in front of the camera. A real turn changes the
     relative rotation, not the scene: this is the large rotation of a vehicle turning (kitti-07
     frames 130-142 rotate 32 degrees in 10 frames), which the training pairs rarely show with few
-    inliers. Pinhole: distortion is taken as already removed (true for the datasets trained on).
+    inliers. Pinhole only: ``train`` refuses --turn-deg on cameras with lens distortion.
     """
     camera = pair.seq.camera
     H = camera.K @ turn @ np.linalg.inv(camera.K)
@@ -275,6 +275,12 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         raise ValueError(f"--thin-inliers is a probability in [0, 1], got {c['thin_inliers']}")
     if not 0 <= c["turn_deg"] <= MAX_TURN_DEG:
         raise ValueError(f"--turn-deg must be in [0, {MAX_TURN_DEG:g}] degrees (0 = off), got {c['turn_deg']}")
+    if c["turn_deg"] > 0:
+        for spec in train_specs:
+            path = parse_seq_spec(spec)[0]
+            if np.any(Sequence.load(path).camera.dist):
+                raise ValueError(f"--turn-deg: {path}/camera.yaml has lens distortion; turning is done with the pinhole "
+                                 "model, so train on undistorted (rectified) images or without --turn-deg")
     out_dir = Path(out_dir)
     resuming = resume and (out_dir / "last.pt").is_file()  # --init only seeds a run's first start
     if c["init"] is not None and not resuming:

@@ -199,6 +199,13 @@ def test_turn_is_a_rotation_of_the_second_camera(tmp_path):
     assert not ((k1[~inside] >= 0).all(1) & (k1[~inside, 0] < w) & (k1[~inside, 1] < h)).any()
 
 
+def test_turn_on_a_distorted_camera_is_a_clear_error(tmp_path):
+    euroc, fountain = str(data_dir("euroc-v101-cam0")), str(data_dir("strecha-fountain-p11"))
+    with pytest.raises(ValueError, match="--turn-deg: .*euroc-v101-cam0/camera.yaml has lens distortion"):
+        train([fountain, euroc], [fountain], tmp_path / "out", {"turn_deg": 10.0}, cache_dir=tmp_path / "cache")
+    assert not any(tmp_path.iterdir())  # refused before any work
+
+
 @pytest.mark.parametrize(("key", "on", "off"), [("augment", True, False), ("thin_inliers", 1.0, 0.0),
                                                 ("turn_deg", 25.0, 0.0)])
 def test_training_option_is_seeded_and_changes_the_batches(tmp_path, key, on, off):
