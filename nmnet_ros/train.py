@@ -8,6 +8,7 @@ The best checkpoint by validation F-measure is kept; ``last.pt`` makes a run res
 ``--augment`` swaps, mirrors and rolls the training pairs (same labels) against overfitting;
 ``--thin-inliers`` lowers some samples' inlier ratio to that of wide-baseline pairs;
 ``--turn-deg`` pans/tilts the second camera (labels recomputed) for the large rotations of turns.
+``--balance`` gives small folders (the wide-baseline Strecha scenes) a larger share of the samples.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ DEFAULT_CONFIG: dict = {
     "augment": False,  # label-preserving pair augmentation (see ``draw_augmentation``)
     "thin_inliers": 0.0,  # probability that a sample keeps only part of its inliers (see ``sample_correspondences``)
     "turn_deg": 0.0,  # turn the second camera about its centre by up to this many degrees (see ``turn_camera``); 0 = off
+    "balance": 0.0,  # 0 = every training pair equally often; 1 = every training folder equally often (see ``pair_weights``)
 }
 
 MAX_ROLL_DEG = 10.0  # per-image camera roll drawn from +-this when augmenting
@@ -74,6 +76,20 @@ def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min
         log(f"  {spec}: {len(kept)} pairs (of {len(chosen)}), mean inlier ratio {100 * ratio:.1f}%")
         out.extend(kept)
     return out
+
+
+def pair_weights(group_sizes: list[int], balance: float) -> np.ndarray | None:
+    """Sampling probability of each training pair, folder by folder, or None for uniform over pairs.
+
+    A folder with n pairs gets a share proportional to n ** (1 - balance): 0 keeps every pair
+    equally likely (a long sequence dominates), 1 gives every folder the same share, values in
+    between temper the long ones (the temperature sampling of multi-corpus training).
+    """
+    if balance == 0:
+        return None
+    sizes = np.asarray([n for n in group_sizes if n > 0], dtype=float)
+    share = sizes ** (1.0 - balance)
+    return np.repeat(share / share.sum() / sizes, sizes.astype(int))
 
 
 def draw_augmentation(rng: np.random.Generator) -> tuple[bool, bool, float, float]:
@@ -275,6 +291,8 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         raise ValueError(f"--thin-inliers is a probability in [0, 1], got {c['thin_inliers']}")
     if not 0 <= c["turn_deg"] <= MAX_TURN_DEG:
         raise ValueError(f"--turn-deg must be in [0, {MAX_TURN_DEG:g}] degrees (0 = off), got {c['turn_deg']}")
+    if not 0 <= c["balance"] <= 1:
+        raise ValueError(f"--balance must be in [0, 1] (0 = pairs equally often, 1 = folders equally often), got {c['balance']}")
     if c["turn_deg"] > 0:
         for spec in train_specs:
             path = parse_seq_spec(spec)[0]
@@ -290,7 +308,9 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         model = NMNet({"neighbors": kind})
     cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
-    train_pairs = load_pairs(train_specs, cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"])
+    groups = [load_pairs([spec], cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"]) for spec in train_specs]
+    train_pairs = [p for g in groups for p in g]
+    weights = pair_weights([len(g) for g in groups], c["balance"])
     log("loading validation pairs")
     val_pairs = load_pairs(val_specs, cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"])
     if not train_pairs:
@@ -321,7 +341,9 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         t0 = time.time()
         for _ in range(c["steps_per_epoch"]):
             batch = []  # drawn in order from the seeded generator, whatever the number of workers
-            for pi in rng.integers(len(train_pairs), size=c["batch"]):
+            drawn = (rng.integers(len(train_pairs), size=c["batch"]) if weights is None
+                     else rng.choice(len(train_pairs), size=c["batch"], p=weights))
+            for pi in drawn:
                 batch.append((train_pairs[pi], *draw_sample(rng, train_pairs[pi], c)))
             inputs = list(pool.map(lambda b: network_input(b[0], kind, model.config["k"], b[1], b[2], b[3]), batch))
             ys = [torch.from_numpy(b[4].astype(np.float32))[None] for b in batch]
@@ -382,6 +404,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--turn-deg", type=float, default=DEFAULT_CONFIG["turn_deg"], metavar="DEG",
                    help="turn each sample's second camera about its centre by up to DEG degrees (pan/tilt; "
                         "labels recomputed, matches turned out of the image dropped); 0 = off")
+    p.add_argument("--balance", type=float, default=DEFAULT_CONFIG["balance"], metavar="B",
+                   help="share of the samples per --train folder: proportional to its pair count ** (1 - B); "
+                        "0 = every pair equally often, 1 = every folder equally often")
 
 
 def parse_gaps(text: str) -> tuple[int, ...]:
@@ -395,7 +420,7 @@ def parse_gaps(text: str) -> tuple[int, ...]:
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet train``."""
     keys = ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr", "device", "workers",
-            "detector", "label_threshold", "augment", "thin_inliers", "turn_deg")
+            "detector", "label_threshold", "augment", "thin_inliers", "turn_deg", "balance")
     cfg = {k: getattr(args, k) for k in keys}
     cfg["init"] = str(args.init) if args.init else None
     cfg["gaps"] = parse_gaps(args.gaps)

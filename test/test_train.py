@@ -18,6 +18,7 @@ from nmnet_ros.train import (
     draw_turn,
     load_pairs,
     network_input,
+    pair_weights,
     sample_correspondences,
     train,
     turn_camera,
@@ -110,7 +111,9 @@ def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
                                                      ("thin_inliers", -0.1, "--thin-inliers is a probability in"),
                                                      ("thin_inliers", 1.5, "--thin-inliers is a probability in"),
                                                      ("turn_deg", -5.0, "--turn-deg must be in"),
-                                                     ("turn_deg", 90.0, "--turn-deg must be in")])
+                                                     ("turn_deg", 90.0, "--turn-deg must be in"),
+                                                     ("balance", -0.5, "--balance must be in"),
+                                                     ("balance", 1.5, "--balance must be in")])
 def test_option_out_of_range_is_a_clear_error(tmp_path, key, value, match):
     seq = str(data_dir("strecha-fountain-p11"))
     with pytest.raises(ValueError, match=match):
@@ -252,3 +255,27 @@ def test_thinning_leaves_pairs_already_below_the_floor_alone():
     labels[:10] = True  # 2 %
     a, b = np.random.default_rng(2), np.random.default_rng(2)
     assert np.array_equal(sample_correspondences(a, labels, 300, thin=1.0), b.choice(500, size=300, replace=False))
+
+
+def test_balance_shares_the_samples_between_folders():
+    assert pair_weights([29, 26, 1145], 0.0) is None  # off: the plain uniform draw over pairs
+    for balance, expected in [(1.0, [1 / 3, 1 / 3, 1 / 3]), (0.5, np.sqrt([29, 26, 1145]) / np.sqrt([29, 26, 1145]).sum())]:
+        w = pair_weights([29, 26, 1145], balance)
+        assert w.shape == (1200,) and np.isclose(w.sum(), 1.0)
+        shares = [w[:29].sum(), w[29:55].sum(), w[55:].sum()]
+        assert np.allclose(shares, expected)
+        assert np.allclose(w[:29], w[0]) and np.allclose(w[55:], w[55])  # uniform within a folder
+    assert np.allclose(pair_weights([4, 0, 12], 1.0), np.r_[np.full(4, 1 / 8), np.full(12, 1 / 24)])  # empty folder skipped
+
+
+def test_balance_is_seeded_and_changes_the_batches(tmp_path):
+    fountain, entry = str(data_dir("strecha-fountain-p11")), str(data_dir("strecha-entry-p10"))
+    cfg = {"epochs": 1, "steps_per_epoch": 2, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1}
+    spec_train, spec_val, cache = [f"{fountain}:0-4", f"{entry}:0-1"], [f"{fountain}:5-6"], tmp_path / "cache"
+
+    def loss(out: str, balance: float) -> float:
+        train(spec_train, spec_val, tmp_path / out, {**cfg, "balance": balance}, cache_dir=cache)
+        return json.loads((tmp_path / out / "history.json").read_text())[0]["loss"]
+
+    a, b = loss("a", 1.0), loss("b", 1.0)
+    assert a == b and a != loss("plain", 0.0)
