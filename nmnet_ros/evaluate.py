@@ -2,7 +2,10 @@
 
 Per method: precision / recall / F-measure of the selected matches (mean over pairs, the
 paper's P/R/F), pose AUC@5/10/20 and median rotation/translation errors (a failed pair counts
-as 180 degrees), and selection + pose time per pair.
+as 180 degrees), and selection + pose time per pair. With ``--seeds N`` every method with a
+MAGSAC++/RANSAC stage runs N times per pair with different random samples and the metrics average
+over the runs: on hard pairs one seed's luck moves a method's AUC@5 by a few tenths, about the
+size of the differences between the best pipelines.
 """
 
 from __future__ import annotations
@@ -43,31 +46,45 @@ def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache
     return pairs
 
 
+ROBUST = ("ratio+magsac", "ransac", "magsac", "nmnet+magsac", "nmnet+ratio+magsac", "oracle")  # random samples
+
+
 def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
-             config: dict | None = None) -> dict:
-    """Run every method on every pair; returns {method: metrics} (+ raw errors under '_errors')."""
+             config: dict | None = None, seeds: int = 1) -> dict:
+    """Run every method on every pair; returns {"metrics": {method: metrics}, "errors": {method: errors}}.
+
+    Methods with a robust estimator run once per seed 0..seeds-1, the others (deterministic) once;
+    errors (max of rotation and translation, degrees) are (pairs, seeds) for every method and each
+    metric is the mean over all runs.
+    """
+    if seeds < 1:
+        raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {seeds}")
     out, errors = {}, {}
     for name in methods:
-        select = build(name, config, weights)
+        runs = seeds if name in ROBUST else 1
+        selects = [build(name, {**(config or {}), "seed": s}, weights) for s in range(runs)]
         prfs, errs, secs = [], [], []
         for p in pairs:
             c = to_correspondences(p)
-            t0 = time.perf_counter()
-            sel = select(c)
-            secs.append(time.perf_counter() - t0)
-            prfs.append(prf(sel.mask, p.labels))
-            errs.append(pose_error_deg(sel.pose, p.R, p.t))
-        e = np.array(errs)
-        aucs = pose_auc(e.max(1))
+            row = []
+            for select in selects:
+                t0 = time.perf_counter()
+                sel = select(c)
+                secs.append(time.perf_counter() - t0)
+                prfs.append(prf(sel.mask, p.labels))
+                row.append(pose_error_deg(sel.pose, p.R, p.t))
+            errs.append(row * (seeds // runs))  # a deterministic method's one run stands for every seed
+        e = np.array(errs, np.float64)  # (pairs, seeds, rotation/translation)
+        aucs = pose_auc(e.max(2).ravel())
         out[name] = {
             "precision": float(np.mean([x["precision"] for x in prfs])),
             "recall": float(np.mean([x["recall"] for x in prfs])),
             "f1": float(np.mean([x["f1"] for x in prfs])),
             "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2],
-            "median_rot_deg": float(np.median(e[:, 0])), "median_trans_deg": float(np.median(e[:, 1])),
+            "median_rot_deg": float(np.median(e[..., 0])), "median_trans_deg": float(np.median(e[..., 1])),
             "pairs": len(pairs), "sec_per_pair": float(np.mean(secs)),
         }
-        errors[name] = e.max(1)
+        errors[name] = e.max(2)
     return {"metrics": out, "errors": errors}
 
 
@@ -77,14 +94,14 @@ def paired_auc_difference(errors: np.ndarray, reference: np.ndarray, threshold: 
 
     A paired bootstrap over the pairs: each resample draws pairs with replacement and scores both
     methods on the same draw, so a difference decided by one or two hard pairs shows as an
-    interval that straddles zero.
+    interval that straddles zero. Errors are (pairs,) or (pairs, seeds): a pair's runs are drawn together.
     """
     errors, reference = np.asarray(errors, np.float64), np.asarray(reference, np.float64)
-    if errors.shape != reference.shape or errors.ndim != 1 or errors.size == 0:
+    if errors.shape != reference.shape or errors.ndim not in (1, 2) or errors.size == 0:
         raise ValueError(f"need the same non-empty set of pairs, got {errors.shape} and {reference.shape}")
 
     def delta(idx: np.ndarray | slice) -> float:
-        return 100 * (pose_auc(errors[idx], (threshold,))[0] - pose_auc(reference[idx], (threshold,))[0])
+        return 100 * (pose_auc(errors[idx].ravel(), (threshold,))[0] - pose_auc(reference[idx].ravel(), (threshold,))[0])
 
     draws = np.random.default_rng(seed).integers(len(errors), size=(resamples, len(errors)))
     lo, hi = np.percentile([delta(d) for d in draws], [2.5, 97.5])
@@ -93,7 +110,9 @@ def paired_auc_difference(errors: np.ndarray, reference: np.ndarray, threshold: 
 
 def difference_lines(errors: dict[str, np.ndarray], reference: str) -> list[str]:
     """One line per method: its AUC@5 minus the reference's, with the paired-bootstrap interval."""
-    lines = [f"AUC@5 minus {reference}'s, same {len(errors[reference])} pairs (paired bootstrap, 95 % interval):"]
+    ref = np.asarray(errors[reference])
+    runs = f" x {ref.shape[1]} seeds" if ref.ndim == 2 and ref.shape[1] > 1 else ""
+    lines = [f"AUC@5 minus {reference}'s, same {len(ref)} pairs{runs} (paired bootstrap, 95 % interval):"]
     for name, e in errors.items():
         if name != reference:
             d, lo, hi = paired_auc_difference(e, errors[reference])
@@ -152,6 +171,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="NM-Net probability cut for every nmnet method (default: the one calibrated with the weights)")
     p.add_argument("--reference", default="ratio+magsac", choices=METHODS,
                    help="method the others' AUC@5 is compared with (paired bootstrap); skipped when not run")
+    p.add_argument("--seeds", type=int, default=1,
+                   help="runs of every MAGSAC++/RANSAC method per pair, each with other random samples (metrics: the mean)")
     p.add_argument("--refine-iterations", type=int, default=SELECTOR_DEFAULTS["refine_iterations"],
                    help="robust pose polish after every MAGSAC++/RANSAC fit (0 = the plain OpenCV estimate)")
 
@@ -166,6 +187,8 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--score-threshold must be in [0, 1), got {args.score_threshold}")
     if not args.threshold_px > 0:
         raise ValueError(f"--threshold-px must be > 0, got {args.threshold_px}")
+    if args.seeds < 1:
+        raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {args.seeds}")
     if args.refine_iterations < 0:
         raise ValueError(f"--refine-iterations must be >= 0 (0 = off), got {args.refine_iterations}")
     if args.json:
@@ -174,8 +197,9 @@ def main(args: argparse.Namespace) -> int:
     pairs = load_eval_pairs(args.seqs, parse_gaps(args.gaps), FeatureCache(make_detector(args.detector), args.cache),
                             args.stride, args.max_pairs)
     res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px,
-                                             "refine_iterations": args.refine_iterations})
-    print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%\n")
+                                             "refine_iterations": args.refine_iterations}, args.seeds)
+    runs = f"; MAGSAC++/RANSAC methods: mean of {args.seeds} seeds" if args.seeds > 1 else ""
+    print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%{runs}\n")
     print(markdown_table(res["metrics"]))
     if args.reference in res["errors"] and len(res["errors"]) > 1:
         print("\n" + "\n".join(difference_lines(res["errors"], args.reference)))

@@ -117,22 +117,44 @@ class PoseEstimate:
 MIN_MATCHES = 8
 
 
+MAGSAC_POLISHER = 2  # cv2.PolishingMethod.MAGSAC (the Python binding names only NONE/LSQ/COV_POLISHER)
+
+
+def _magsac_params(threshold: float, confidence: float, max_iters: int, seed: int) -> cv2.UsacParams:
+    """OpenCV's USAC_MAGSAC preset spelled out, so that its random generator can be seeded.
+
+    The ``cv2.USAC_MAGSAC`` flag always starts USAC's generator from the same state
+    (``cv2.setRNGSeed`` does not reach it); these parameters give the same estimate at seed 0.
+    """
+    p = cv2.UsacParams()
+    p.sampler, p.score = cv2.SAMPLING_UNIFORM, cv2.SCORE_METHOD_MAGSAC
+    p.loMethod, p.loIterations, p.loSampleSize = cv2.LOCAL_OPTIM_SIGMA, 10, 50
+    p.final_polisher, p.final_polisher_iterations = MAGSAC_POLISHER, 20
+    p.maxIterations, p.confidence, p.threshold, p.randomGeneratorState = max_iters, confidence, threshold, seed
+    return p
+
+
 def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac", threshold: float = 1e-3,
                        confidence: float = 0.999, max_iters: int = 10000, seed: int = 0) -> tuple[np.ndarray, np.ndarray] | None:
     """Robust E from normalised points: ``magsac`` (OpenCV USAC MAGSAC++) or ``ransac``.
 
-    ``threshold`` is in normalised units (pixels / focal length). Returns (E, inlier mask) or
-    None when there are fewer than 8 correspondences or no model was found.
+    ``threshold`` is in normalised units (pixels / focal length); ``seed`` picks the random
+    samples (on hard pairs a different seed can give a different pose). Returns (E, inlier mask)
+    or None when there are fewer than 8 correspondences or no model was found.
     """
     x0n, x1n = _checked_pair(x0n, x1n)
     if len(x0n) < MIN_MATCHES:
         return None
-    flags = {"magsac": cv2.USAC_MAGSAC, "ransac": cv2.RANSAC}
-    if method not in flags:
-        raise ValueError(f"unknown robust estimator {method!r}; use one of {sorted(flags)}")
-    cv2.setRNGSeed(seed)
-    E, mask = cv2.findEssentialMat(x0n, x1n, np.eye(3), method=flags[method], prob=confidence,
-                                   threshold=threshold, maxIters=max_iters)
+    if method == "magsac":
+        eye, no_dist = np.eye(3), np.zeros(5)
+        E, mask = cv2.findEssentialMat(x0n, x1n, eye, eye, no_dist, no_dist,
+                                       _magsac_params(threshold, confidence, max_iters, seed))
+    elif method == "ransac":
+        cv2.setRNGSeed(seed)
+        E, mask = cv2.findEssentialMat(x0n, x1n, np.eye(3), method=cv2.RANSAC, prob=confidence,
+                                       threshold=threshold, maxIters=max_iters)
+    else:
+        raise ValueError(f"unknown robust estimator {method!r}; use one of ['magsac', 'ransac']")
     if E is None or E.shape[0] < 3 or mask is None:
         return None
     return E[:3], mask.ravel().astype(bool)  # several stacked solutions: the first is the best

@@ -41,3 +41,16 @@ def test_lines_name_every_other_method():
     assert [ln.split(":")[0].strip() for ln in lines[1:]] == ["a", "b"]
     gain = 100 * (pose_auc(e["a"], (5.0,))[0] - pose_auc(e["ref"], (5.0,))[0])  # 1 deg against 2 deg everywhere
     assert gain > 15 and lines[1].split(":")[1].strip().startswith(f"{gain:+.1f} [{gain:+.1f}, {gain:+.1f}]")
+
+
+def test_a_pairs_seeds_are_drawn_together():
+    ref = np.random.default_rng(3).exponential(1.0, (50, 4))
+    d, lo, hi = paired_auc_difference(ref.copy(), ref)
+    assert (d, lo, hi) == (0.0, 0.0, 0.0)
+    worse = ref.copy()
+    worse[5, :] = 180.0  # one pair failed in every run: the interval still straddles zero (it is one pair)
+    d, lo, hi = paired_auc_difference(worse, ref)
+    assert d == pytest.approx(100 * (pose_auc(worse.ravel(), (5.0,))[0] - pose_auc(ref.ravel(), (5.0,))[0]))
+    assert lo < d < 0 and hi >= 0
+    with pytest.raises(ValueError, match="same non-empty set of pairs"):
+        paired_auc_difference(ref, ref[:, :3])

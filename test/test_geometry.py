@@ -189,3 +189,30 @@ def test_too_few_and_mismatched_points():
         weighted_eight_point(*synthetic(20)[:2], np.ones(3))
     with pytest.raises(ValueError, match="unknown robust estimator"):
         estimate_essential(*synthetic(20)[:2], method="lmeds2")
+
+
+def _noisy_with_outliers(n_in=40, n_out=360, noise=2e-3):
+    """Synthetic matches, 10 % inliers with noise: hard enough that the random samples matter."""
+    x0, x1, R, t = synthetic(n_in + n_out, seed=3)
+    rng = np.random.default_rng(4)
+    x1 = x1 + rng.normal(0, noise, x1.shape)
+    x1[n_in:] = rng.uniform(x1.min(0), x1.max(0), (n_out, 2))
+    return x0, x1
+
+
+def test_magsac_seed_zero_is_opencvs_usac_magsac_preset():
+    import cv2
+
+    x0, x1 = _noisy_with_outliers()
+    E_flag, m_flag = cv2.findEssentialMat(x0, x1, np.eye(3), method=cv2.USAC_MAGSAC, prob=0.999, threshold=1e-3,
+                                          maxIters=10000)
+    E, mask = estimate_essential(x0, x1, "magsac", 1e-3)
+    assert np.array_equal(mask, m_flag.ravel().astype(bool)) and np.allclose(E, E_flag[:3])
+
+
+def test_magsac_seed_picks_the_samples_and_is_repeatable():
+    x0, x1 = _noisy_with_outliers()
+    runs = [estimate_essential(x0, x1, "magsac", 1e-3, seed=s) for s in (0, 1, 2, 3)]
+    again = estimate_essential(x0, x1, "magsac", 1e-3, seed=2)
+    assert np.array_equal(again[1], runs[2][1]) and np.array_equal(again[0], runs[2][0])
+    assert len({r[1].tobytes() for r in runs}) > 1  # the seed reaches USAC's generator

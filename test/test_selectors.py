@@ -100,6 +100,20 @@ def test_score_threshold_trades_recall_for_precision(pairs):
     assert high["recall"] < low["recall"] and high["precision"] > low["precision"]
 
 
+def test_seeds_rerun_only_the_robust_methods_and_average_them(pairs):
+    from nmnet_ros.evaluate import evaluate
+
+    one = evaluate(pairs, ["ratio", "ratio+magsac"])
+    three = evaluate(pairs, ["ratio", "ratio+magsac"], seeds=3)
+    assert one["errors"]["ratio"].shape == (len(pairs), 1) and three["errors"]["ratio"].shape == (len(pairs), 3)
+    assert np.all(three["errors"]["ratio"] == one["errors"]["ratio"])  # deterministic: one run stands for all
+    assert three["metrics"]["ratio"]["auc5"] == pytest.approx(one["metrics"]["ratio"]["auc5"])
+    robust = three["errors"]["ratio+magsac"]
+    assert np.array_equal(robust[:, 0], one["errors"]["ratio+magsac"][:, 0])  # seed 0 is the default run
+    assert not np.array_equal(robust[:, 1], robust[:, 0])  # other samples, other polished poses
+    assert three["metrics"]["ratio+magsac"]["median_rot_deg"] >= 0
+
+
 def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     import json
     import subprocess
@@ -128,6 +142,8 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     assert bad.returncode != 0 and "--threshold-px must be > 0" in bad.stderr
     bad = subprocess.run(cmd + ["--refine-iterations", "-1"], capture_output=True, text=True)
     assert bad.returncode != 0 and "--refine-iterations must be >= 0" in bad.stderr
+    bad = subprocess.run(cmd + ["--seeds", "0"], capture_output=True, text=True)
+    assert bad.returncode != 0 and "--seeds must be >= 1" in bad.stderr
 
 
 def test_pose_refinement_keeps_the_selection_and_lowers_the_robust_cost(pairs):
