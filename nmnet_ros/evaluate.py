@@ -171,6 +171,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="NM-Net probability cut for every nmnet method (default: the one calibrated with the weights)")
     p.add_argument("--reference", default="ratio+magsac", choices=METHODS,
                    help="method the others' AUC@5 is compared with (paired bootstrap); skipped when not run")
+    p.add_argument("--max-iters", type=int, default=SELECTOR_DEFAULTS["max_iters"],
+                   help="MAGSAC++/RANSAC iteration cap for every robust method")
     p.add_argument("--seeds", type=int, default=1,
                    help="runs of every MAGSAC++/RANSAC method per pair, each with other random samples (metrics: the mean)")
     p.add_argument("--refine-iterations", type=int, default=SELECTOR_DEFAULTS["refine_iterations"],
@@ -187,6 +189,8 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--score-threshold must be in [0, 1), got {args.score_threshold}")
     if not args.threshold_px > 0:
         raise ValueError(f"--threshold-px must be > 0, got {args.threshold_px}")
+    if args.max_iters < 1:
+        raise ValueError(f"--max-iters must be >= 1, got {args.max_iters}")
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {args.seeds}")
     if args.refine_iterations < 0:
@@ -197,7 +201,8 @@ def main(args: argparse.Namespace) -> int:
     pairs = load_eval_pairs(args.seqs, parse_gaps(args.gaps), FeatureCache(make_detector(args.detector), args.cache),
                             args.stride, args.max_pairs)
     res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px,
-                                             "refine_iterations": args.refine_iterations}, args.seeds)
+                                             "refine_iterations": args.refine_iterations, "max_iters": args.max_iters},
+                   args.seeds)
     runs = f"; MAGSAC++/RANSAC methods: mean of {args.seeds} seeds" if args.seeds > 1 else ""
     print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%{runs}\n")
     print(markdown_table(res["metrics"]))

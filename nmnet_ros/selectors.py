@@ -28,6 +28,7 @@ DEFAULT_CONFIG: dict = {
     "ratio": 0.8,
     "score_threshold": None,  # NM-Net probability above which a match is selected; None = calibrated with the weights
     "refine_iterations": 5,  # robust pose polish after MAGSAC++/RANSAC (0 = off; 5 saturates on training pairs)
+    "max_iters": 10000,  # MAGSAC++/RANSAC iteration cap (they stop earlier once confident)
     "seed": 0,  # MAGSAC++/RANSAC random samples (fixed: the same frames give the same pose)
 }
 
@@ -74,7 +75,7 @@ def _robust(c: Correspondences, keep: np.ndarray, method: str, cfg: dict) -> Sel
     mask = np.zeros(len(c), bool)
     threshold = cfg["threshold_px"] / c.focal
     x0, x1 = c.x0[keep], c.x1[keep]
-    est = estimate_essential(x0, x1, method, threshold, seed=cfg["seed"])
+    est = estimate_essential(x0, x1, method, threshold, max_iters=cfg["max_iters"], seed=cfg["seed"])
     if est is None:
         return Selection(mask, None, None)
     E, inl = est

@@ -112,6 +112,8 @@ def test_seeds_rerun_only_the_robust_methods_and_average_them(pairs):
     assert np.array_equal(robust[:, 0], one["errors"]["ratio+magsac"][:, 0])  # seed 0 is the default run
     assert not np.array_equal(robust[:, 1], robust[:, 0])  # other samples, other polished poses
     assert three["metrics"]["ratio+magsac"]["median_rot_deg"] >= 0
+    capped = evaluate(pairs[:3], ["ratio+magsac"], config={"max_iters": 1})["errors"]["ratio+magsac"]
+    assert not np.array_equal(capped, one["errors"]["ratio+magsac"][:3])  # the cap reaches MAGSAC++
 
 
 def test_eval_cli_writes_the_json_contract(tmp_path, cache):
@@ -144,6 +146,8 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     assert bad.returncode != 0 and "--refine-iterations must be >= 0" in bad.stderr
     bad = subprocess.run(cmd + ["--seeds", "0"], capture_output=True, text=True)
     assert bad.returncode != 0 and "--seeds must be >= 1" in bad.stderr
+    bad = subprocess.run(cmd + ["--max-iters", "0"], capture_output=True, text=True)
+    assert bad.returncode != 0 and "--max-iters must be >= 1" in bad.stderr
 
 
 def test_pose_refinement_keeps_the_selection_and_lowers_the_robust_cost(pairs):
