@@ -117,9 +117,6 @@ class PoseEstimate:
 MIN_MATCHES = 8
 
 
-MAGSAC_POLISHER = 2  # cv2.PolishingMethod.MAGSAC (the Python binding names only NONE/LSQ/COV_POLISHER)
-
-
 def _magsac_params(threshold: float, confidence: float, max_iters: int, seed: int) -> cv2.UsacParams:
     """OpenCV's USAC_MAGSAC preset spelled out, so that its random generator can be seeded.
 
@@ -129,7 +126,7 @@ def _magsac_params(threshold: float, confidence: float, max_iters: int, seed: in
     p = cv2.UsacParams()
     p.sampler, p.score = cv2.SAMPLING_UNIFORM, cv2.SCORE_METHOD_MAGSAC
     p.loMethod, p.loIterations, p.loSampleSize = cv2.LOCAL_OPTIM_SIGMA, 10, 50
-    p.final_polisher, p.final_polisher_iterations = MAGSAC_POLISHER, 20
+    p.final_polisher, p.final_polisher_iterations = cv2.MAGSAC, 20  # cv2.MAGSAC: the polisher
     p.maxIterations, p.confidence, p.threshold, p.randomGeneratorState = max_iters, confidence, threshold, seed
     return p
 

@@ -123,17 +123,29 @@ def nmnet_select(model: NMNet | FastNMNet, c: Correspondences, cfg: dict) -> Sel
     return Selection(mask, scores, pose)
 
 
-def nmnet_magsac_select(model: NMNet | FastNMNet, c: Correspondences, cfg: dict, classic: bool = False) -> Selection:
+def nmnet_magsac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Correspondences, cfg: dict,
+                        classic: bool = False) -> Selection:
     """MAGSAC++ on NM-Net's selection (``classic``: also mutual NN and ratio test); keeps the network's scores.
 
-    The network scores every nearest-neighbour match, as it was trained; the classic test is applied
-    afterwards, so the two filters' rejections add up.
+    ``scored`` is ``nmnet_scores`` of ``c``. The network scores every nearest-neighbour match, as it
+    was trained; the classic test is applied afterwards, so the two filters' rejections add up.
     """
-    _, scores, mask = nmnet_scores(model, c, cfg)
+    _, scores, mask = scored
     if classic:
         mask = mask & classic_mask(c, cfg)
     sel = _robust(c, mask, "magsac", cfg)
     return Selection(sel.mask, scores, sel.pose)
+
+
+def _remember_last(f: Callable[[Correspondences], tuple]) -> Callable[[Correspondences], tuple]:
+    """``f`` remembering its result for the last correspondences it saw (reruns with other seeds reuse it)."""
+    last: list = [None, None]
+
+    def g(c: Correspondences) -> tuple:
+        if last[0] is not c:
+            last[:] = [c, f(c)]
+        return last[1]
+    return g
 
 
 def gms_mask(c: Correspondences) -> np.ndarray:
@@ -187,10 +199,18 @@ def lpm_mask(c: Correspondences, rounds: tuple[tuple[int, float], ...] = ((6, 0.
     return keep
 
 
-def build(name: str, config: dict | None = None, weights: dict[str, str] | None = None) -> Callable[[Correspondences], Selection]:
-    """The selector called ``name`` as a function of the correspondences."""
+def build(name: str, config: dict | None = None, weights: dict[str, str] | None = None) -> Callable[..., Selection]:
+    """The selector called ``name``: ``select(c)`` -> Selection.
+
+    The methods in ``ROBUST`` also take ``select(c, seed=s)``: the same pair with other random
+    samples (NM-Net runs once per pair, only the robust stage is redone).
+    """
     cfg = {**DEFAULT_CONFIG, **(config or {})}
     weights = weights or {}
+
+    def at(seed: int | None) -> dict:
+        return cfg if seed is None else {**cfg, "seed": seed}
+
     if name in ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac"):
         variant = "nmnet-sp" if name == "nmnet-sp" else "nmnet"
         model = FastNMNet(load_model(weights.get(variant), variant))  # exact rewrite, ~2x faster on CPU
@@ -198,16 +218,19 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         if model.config["neighbors"] == "compatibility":
             warm_up()  # the mining kernel's compile / cache load happens here, not on the first frame pair
         if name in ("nmnet+magsac", "nmnet+ratio+magsac"):
-            return lambda c: nmnet_magsac_select(model, c, cfg, classic=name == "nmnet+ratio+magsac")
+            scored = _remember_last(lambda c: nmnet_scores(model, c, cfg))
+            classic = name == "nmnet+ratio+magsac"
+            return lambda c, seed=None: nmnet_magsac_select(scored(c), c, at(seed), classic)
         return lambda c: nmnet_select(model, c, cfg)
-    table: dict[str, Callable[[Correspondences], Selection]] = {
+    table: dict[str, Callable[..., Selection]] = {
         "ratio": lambda c: _filtered(c, c.ratio < cfg["ratio"]),
-        "ransac": lambda c: _robust(c, np.ones(len(c), bool), "ransac", cfg),
-        "magsac": lambda c: _robust(c, np.ones(len(c), bool), "magsac", cfg),
-        "ratio+magsac": lambda c: _robust(c, classic_mask(c, cfg), "magsac", cfg),
+        "ransac": lambda c, seed=None: _robust(c, np.ones(len(c), bool), "ransac", at(seed)),
+        "magsac": lambda c, seed=None: _robust(c, np.ones(len(c), bool), "magsac", at(seed)),
+        "ratio+magsac": lambda c, seed=None: _robust(c, classic_mask(c, cfg), "magsac", at(seed)),
         "gms": lambda c: _filtered(c, gms_mask(c)),
         "lpm": lambda c: _filtered(c, lpm_mask(c)),
-        "oracle": lambda c: _robust(c, c.labels if c.labels is not None else np.zeros(len(c), bool), "magsac", cfg),
+        "oracle": lambda c, seed=None: _robust(c, c.labels if c.labels is not None else np.zeros(len(c), bool), "magsac",
+                                               at(seed)),
     }
     if name not in table:
         raise ValueError(f"unknown method {name!r}; choose from {', '.join(METHODS)}")
@@ -216,3 +239,4 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
 
 METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ransac", "magsac", "gms", "lpm", "nmnet+magsac",
            "nmnet+ratio+magsac", "oracle")
+ROBUST = ("ratio+magsac", "ransac", "magsac", "nmnet+magsac", "nmnet+ratio+magsac", "oracle")  # end in a seeded robust fit

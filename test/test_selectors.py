@@ -116,6 +116,24 @@ def test_seeds_rerun_only_the_robust_methods_and_average_them(pairs):
     assert not np.array_equal(capped, one["errors"]["ratio+magsac"][:3])  # the cap reaches MAGSAC++
 
 
+def test_a_seed_reruns_only_the_robust_stage(pairs):
+    c = to_correspondences(pairs[4])
+    select = build("nmnet+magsac")
+    first, other = select(c, seed=0), select(c, seed=3)
+    assert other.scores is first.scores  # one network pass for the pair, whatever the seeds
+    fresh = build("nmnet+magsac", {"seed": 3})(c)
+    assert np.array_equal(other.mask, fresh.mask) and np.allclose(other.pose.R, fresh.pose.R)
+    later = select(to_correspondences(pairs[5]))
+    assert later.scores is not first.scores and len(later.scores) == len(pairs[5].labels)  # a new pair: a new pass
+
+
+def test_seeds_below_one_are_refused(pairs):
+    from nmnet_ros.evaluate import evaluate
+
+    with pytest.raises(ValueError, match="--seeds must be >= 1"):
+        evaluate(pairs[:1], ["ratio+magsac"], seeds=0)
+
+
 def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     import json
     import subprocess
