@@ -310,11 +310,11 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     log("loading training pairs")
     groups = [load_pairs([spec], cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"]) for spec in train_specs]
     train_pairs = [p for g in groups for p in g]
-    weights = pair_weights([len(g) for g in groups], c["balance"])
     log("loading validation pairs")
     val_pairs = load_pairs(val_specs, cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"])
     if not train_pairs:
         raise ValueError("no training pairs: check the sequence folders and frame ranges")
+    weights = pair_weights([len(g) for g in groups], c["balance"])
     if len(val_pairs) > c["max_val_pairs"]:
         val_pairs = [val_pairs[i] for i in np.linspace(0, len(val_pairs) - 1, c["max_val_pairs"]).round().astype(int)]
 

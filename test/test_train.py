@@ -279,3 +279,11 @@ def test_balance_is_seeded_and_changes_the_batches(tmp_path):
 
     a, b = loss("a", 1.0), loss("b", 1.0)
     assert a == b and a != loss("plain", 0.0)
+
+
+@pytest.mark.parametrize("balance", [0.0, 1.0])
+def test_no_training_pairs_is_a_clear_error(tmp_path, balance):
+    seq = str(data_dir("strecha-fountain-p11"))
+    with pytest.raises(ValueError, match="no training pairs: check the sequence folders and frame ranges"):
+        train([f"{seq}:0-0"], [f"{seq}:1-2"], tmp_path / "out", {"balance": balance, "gaps": (1,)}, cache_dir=tmp_path / "cache")
+    assert not (tmp_path / "out").exists()
