@@ -344,6 +344,9 @@ def main(args: list[str] | None = None) -> int:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:  # rclpy's RCLError "context is not valid": a SIGTERM/SIGINT shut the context down
+        if rclpy.ok():     # between two waits of the executor (the race of ros2/ros2cli#854); anything else is a real failure
+            raise
     except (ValueError, ParameterException) as e:  # rclpy checks types and ranges when the node declares them
         print(f"nmnet_node: error: {e} (parameters, types and ranges: README or `ros2 param describe`)", file=sys.stderr)
         return 2
