@@ -115,6 +115,36 @@ def difference_lines(errors: dict[str, np.ndarray], reference: str) -> list[str]
     return lines
 
 
+def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None) -> str:
+    """AUC@5 of every method on each sequence (``groups[k]`` names pair k's), as a markdown table.
+
+    A mean over several sequences can hide that the methods differ on one and tie on the other;
+    with ``reference`` among the methods, the others' cells also give the paired difference to it.
+    """
+    names = list(dict.fromkeys(groups))
+    labels = np.asarray(groups)
+    if len(labels) != len(next(iter(errors.values()))):
+        raise ValueError(f"{len(labels)} sequence labels for {len(next(iter(errors.values())))} pairs")
+    head = " | ".join(f"{g} ({np.count_nonzero(labels == g)})" for g in names)
+    lines = [f"| AUC@5 per sequence (pairs) | {head} |", "|---" * (len(names) + 1) + "|"]
+    for name, e in errors.items():
+        cells = []
+        for g in names:
+            e_g = np.asarray(e)[labels == g]
+            cell = f"{100 * pose_auc(e_g.ravel(), (5.0,))[0]:.1f}"
+            if reference in errors and name != reference:
+                d, lo, hi = paired_auc_difference(e_g, np.asarray(errors[reference])[labels == g])
+                cell += f" ({d:+.1f} [{lo:+.1f}, {hi:+.1f}])"
+            cells.append(cell)
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def sequence_label(spec: str) -> str:
+    """A 'PATH[:a-b]' spec as it is named in the per-sequence table: the folder's name and range."""
+    return Path(spec).name
+
+
 def markdown_table(metrics: dict) -> str:
     """The results as a markdown table."""
     lines = ["| method | P | R | F | AUC@5 | AUC@10 | AUC@20 | med. rot ° | med. trans ° | ms/pair |",
@@ -193,8 +223,15 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
-    pairs = load_eval_pairs(args.seqs, parse_gaps(args.gaps), FeatureCache(make_detector(args.detector), args.cache),
-                            args.stride, args.max_pairs)
+    cache = FeatureCache(make_detector(args.detector), args.cache)
+    labels = [sequence_label(spec) for spec in args.seqs]
+    if len(set(labels)) < len(labels):  # two folders of the same name (or one given twice): name them in full
+        labels = list(args.seqs)
+    pairs, groups = [], []
+    for spec, label in zip(args.seqs, labels, strict=True):
+        chosen = load_eval_pairs([spec], parse_gaps(args.gaps), cache, args.stride, args.max_pairs)
+        pairs += chosen
+        groups += [label] * len(chosen)
     res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px,
                                              "refine_iterations": args.refine_iterations, "max_iters": args.max_iters},
                    args.seeds)
@@ -203,6 +240,8 @@ def main(args: argparse.Namespace) -> int:
     print(markdown_table(res["metrics"]))
     if args.reference in res["errors"] and len(res["errors"]) > 1:
         print("\n" + "\n".join(difference_lines(res["errors"], args.reference)))
+    if len(set(groups)) > 1:
+        print("\n" + per_sequence_table(res["errors"], groups, args.reference))
     plot_curves(res["errors"], args.plot)
     print(f"\nplot: {args.plot}")
     if args.json:

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nmnet_ros.evaluate import difference_lines, paired_auc_difference
+from nmnet_ros.evaluate import difference_lines, paired_auc_difference, per_sequence_table
 from nmnet_ros.geometry import pose_auc
 
 
@@ -54,3 +54,21 @@ def test_a_pairs_seeds_are_drawn_together():
     assert lo < d < 0 and hi >= 0
     with pytest.raises(ValueError, match="same non-empty set of pairs"):
         paired_auc_difference(ref, ref[:, :3])
+
+
+def test_per_sequence_table_splits_the_pairs_by_sequence():
+    rng = np.random.default_rng(4)
+    ref = rng.exponential(1.0, 30)
+    better = ref.copy()
+    better[20:] /= 4  # better on the second sequence only
+    groups = ["a:0-9"] * 20 + ["b"] * 10
+    table = per_sequence_table({"ref": ref, "new": better}, groups, "ref").splitlines()
+    assert table[0] == "| AUC@5 per sequence (pairs) | a:0-9 (20) | b (10) |"
+    new = [c.strip() for c in table[3].strip("|").split("|")]
+    assert new[0] == "new" and new[1].endswith("(+0.0 [+0.0, +0.0])")  # identical on the first sequence
+    gain = 100 * (pose_auc(better[20:], (5.0,))[0] - pose_auc(ref[20:], (5.0,))[0])
+    assert gain > 5 and new[2].startswith(f"{100 * pose_auc(better[20:], (5.0,))[0]:.1f} ({gain:+.1f} [")
+    assert table[2] == f"| ref | {100 * pose_auc(ref[:20], (5.0,))[0]:.1f} | {100 * pose_auc(ref[20:], (5.0,))[0]:.1f} |"
+    assert "(" not in per_sequence_table({"new": better}, groups, "ref").splitlines()[2]  # no reference: AUC only
+    with pytest.raises(ValueError, match="29 sequence labels for 30 pairs"):
+        per_sequence_table({"ref": ref}, groups[:-1])

@@ -154,6 +154,13 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     ref = subprocess.run(cmd + ["--reference", "oracle"], capture_output=True, text=True)
     assert ref.returncode == 0 and "AUC@5 minus oracle's, same 7 pairs" in ref.stdout
     assert "  nmnet: " in ref.stdout and "  ratio: " in ref.stdout and "  oracle: " not in ref.stdout
+    assert "AUC@5 per sequence" not in ref.stdout  # one sequence: no per-sequence table
+    two = [sys.executable, "-m", "nmnet_ros.cli", "eval", f"{seq}:120-122", f"{seq}:123-125", "--gaps", "1",
+           "--methods", "ratio,oracle", "--reference", "oracle", "--plot", str(tmp_path / "two.png"), "--cache", str(cache.root)]
+    run = subprocess.run(two, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "| AUC@5 per sequence (pairs) | kitti-07:120-122 (2) | kitti-07:123-125 (2) |" in run.stdout
+    assert "| oracle | " in run.stdout.split("AUC@5 per sequence")[1] and " [" in run.stdout.split("| ratio | ")[-1]
     bad = subprocess.run(cmd + ["--reference", "sift"], capture_output=True, text=True)
     assert bad.returncode != 0 and "argument --reference: invalid choice: 'sift'" in bad.stderr
     bad = subprocess.run(cmd + ["--score-threshold", "1.5"], capture_output=True, text=True)
