@@ -123,8 +123,9 @@ def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], referen
     """
     names = list(dict.fromkeys(groups))
     labels = np.asarray(groups)
-    if len(labels) != len(next(iter(errors.values()))):
-        raise ValueError(f"{len(labels)} sequence labels for {len(next(iter(errors.values())))} pairs")
+    n_pairs = len(next(iter(errors.values())))
+    if len(labels) != n_pairs:
+        raise ValueError(f"{len(labels)} sequence labels for {n_pairs} pairs")
     head = " | ".join(f"{g} ({np.count_nonzero(labels == g)})" for g in names)
     lines = [f"| AUC@5 per sequence (pairs) | {head} |", "|---" * (len(names) + 1) + "|"]
     for name, e in errors.items():

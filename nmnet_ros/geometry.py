@@ -117,14 +117,14 @@ class PoseEstimate:
 MIN_MATCHES = 8
 
 
-def _magsac_params(threshold: float, confidence: float, max_iters: int, seed: int) -> cv2.UsacParams:
+def _magsac_params(threshold: float, confidence: float, max_iters: int, seed: int, prosac: bool = False) -> cv2.UsacParams:
     """OpenCV's USAC_MAGSAC preset spelled out, so that its random generator can be seeded.
 
     The ``cv2.USAC_MAGSAC`` flag always starts USAC's generator from the same state
     (``cv2.setRNGSeed`` does not reach it); these parameters give the same estimate at seed 0.
     """
     p = cv2.UsacParams()
-    p.sampler, p.score = cv2.SAMPLING_UNIFORM, cv2.SCORE_METHOD_MAGSAC
+    p.sampler, p.score = cv2.SAMPLING_PROSAC if prosac else cv2.SAMPLING_UNIFORM, cv2.SCORE_METHOD_MAGSAC
     p.loMethod, p.loIterations, p.loSampleSize = cv2.LOCAL_OPTIM_SIGMA, 10, 50
     p.final_polisher, p.final_polisher_iterations = cv2.MAGSAC, 20  # cv2.MAGSAC: the polisher
     p.maxIterations, p.confidence, p.threshold, p.randomGeneratorState = max_iters, confidence, threshold, seed
@@ -132,12 +132,15 @@ def _magsac_params(threshold: float, confidence: float, max_iters: int, seed: in
 
 
 def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac", threshold: float = 1e-3,
-                       confidence: float = 0.999, max_iters: int = 10000, seed: int = 0) -> tuple[np.ndarray, np.ndarray] | None:
+                       confidence: float = 0.999, max_iters: int = 10000, seed: int = 0,
+                       prosac: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
     """Robust E from normalised points: ``magsac`` (OpenCV USAC MAGSAC++) or ``ransac``.
 
     ``threshold`` is in normalised units (pixels / focal length); ``seed`` picks the random
-    samples (on hard pairs a different seed can give a different pose). Returns (E, inlier mask)
-    or None when there are fewer than 8 correspondences or no model was found.
+    samples (on hard pairs a different seed can give a different pose); ``prosac``: the points
+    come best first (e.g. by a network's score) and MAGSAC++ samples them with PROSAC instead of
+    uniformly. Returns (E, inlier mask) or None when there are fewer than 8 correspondences or no
+    model was found.
     """
     x0n, x1n = _checked_pair(x0n, x1n)
     if len(x0n) < MIN_MATCHES:
@@ -145,7 +148,9 @@ def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac",
     if method == "magsac":
         eye, no_dist = np.eye(3), np.zeros(5)
         E, mask = cv2.findEssentialMat(x0n, x1n, eye, eye, no_dist, no_dist,
-                                       _magsac_params(threshold, confidence, max_iters, seed))
+                                       _magsac_params(threshold, confidence, max_iters, seed, prosac))
+    elif prosac:
+        raise ValueError("PROSAC sampling is a MAGSAC++ (USAC) option; use method='magsac'")
     elif method == "ransac":
         cv2.setRNGSeed(seed)
         E, mask = cv2.findEssentialMat(x0n, x1n, np.eye(3), method=cv2.RANSAC, prob=confidence,
@@ -214,6 +219,12 @@ def _sampson(E: np.ndarray, h0: np.ndarray, h1: np.ndarray, dE: np.ndarray | Non
     da = np.sum(h1[None] * dv0, axis=2)
     dd = 2.0 * (v0[:, 0] * dv0[..., 0] + v0[:, 1] * dv0[..., 1] + v1[:, 0] * dv1[..., 0] + v1[:, 1] * dv1[..., 1])
     return r, da / np.sqrt(d) - 0.5 * a * dd / d ** 1.5
+
+
+def sampson_distance(E: np.ndarray, x0n: np.ndarray, x1n: np.ndarray) -> np.ndarray:
+    """Sampson distance of every correspondence to E (normalised units; x focal length = pixels)."""
+    x0n, x1n = _checked_pair(x0n, x1n)
+    return np.abs(_sampson(E, np.c_[x0n, np.ones(len(x0n))], np.c_[x1n, np.ones(len(x1n))])[0])
 
 
 def refine_pose(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, sigma: float,

@@ -14,6 +14,7 @@ from nmnet_ros.geometry import (
     recover_pose,
     refine_pose,
     rotation_error_deg,
+    sampson_distance,
     skew,
     sym_epipolar_sq,
     translation_error_deg,
@@ -216,3 +217,26 @@ def test_magsac_seed_picks_the_samples_and_is_repeatable():
     again = estimate_essential(x0, x1, "magsac", 1e-3, seed=2)
     assert np.array_equal(again[1], runs[2][1]) and np.array_equal(again[0], runs[2][0])
     assert len({r[1].tobytes() for r in runs}) > 1  # the seed reaches USAC's generator
+
+
+def test_prosac_samples_the_given_order_and_needs_magsac():
+    x0, x1 = _noisy_with_outliers()  # the 40 inliers first: the best-first order PROSAC assumes
+    _, _, R, t = synthetic(400, seed=3)
+
+    def translation_errors(prosac):
+        runs = [estimate_essential(x0, x1, "magsac", 1e-3, seed=s, prosac=prosac) for s in range(3)]
+        return [pose_error_deg(recover_pose(E, x0, x1, m), R, t)[1] for E, m in runs]
+    assert max(translation_errors(True)) < min(translation_errors(False))  # the order reaches USAC's sampler
+    with pytest.raises(ValueError, match="PROSAC sampling is a MAGSAC"):
+        estimate_essential(x0, x1, "ransac", 1e-3, prosac=True)
+
+
+def test_sampson_distance_is_zero_on_the_true_model_and_grows_off_it():
+    x0, x1, R, t = synthetic(50, seed=5)
+    E = skew(t) @ R
+    assert np.abs(sampson_distance(E, x0, x1)).max() < 1e-9
+    line = np.c_[x0, np.ones(len(x0))] @ E.T  # x1's epipolar lines
+    normal = line[:, :2] / np.linalg.norm(line[:, :2], axis=1, keepdims=True)
+    along = sampson_distance(E, x0, x1 + 1e-2 * normal[:, ::-1] * [1, -1])  # sliding along the line: no error
+    across = sampson_distance(E, x0, x1 + 1e-2 * normal)  # 0.01 off the line: about that, shared by both points
+    assert along.max() < 1e-9 and (across > 0.25e-2).all() and (across <= 1.0001e-2).all()

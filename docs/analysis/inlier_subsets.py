@@ -20,20 +20,11 @@ import numpy as np
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
 from nmnet_ros.evaluate import load_eval_pairs
-from nmnet_ros.geometry import pose_auc, pose_error_deg, skew
+from nmnet_ros.geometry import pose_auc, pose_error_deg, sampson_distance, skew
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
 from nmnet_ros.pairs import to_correspondences
-from nmnet_ros.selectors import DEFAULT_CONFIG, Correspondences, build, classic_mask, nmnet_scores
-
-
-def sampson_px(c: Correspondences, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Sampson distance of every match to the ground-truth essential matrix, pixels."""
-    E = skew(t) @ R
-    h0, h1 = np.c_[c.x0, np.ones(len(c))], np.c_[c.x1, np.ones(len(c))]
-    ex0, etx1 = h0 @ E.T, h1 @ E
-    num = np.abs(np.sum(h1 * ex0, 1))
-    return c.focal * num / np.sqrt(ex0[:, 0] ** 2 + ex0[:, 1] ** 2 + etx1[:, 0] ** 2 + etx1[:, 1] ** 2)
+from nmnet_ros.selectors import DEFAULT_CONFIG, build, classic_mask, nmnet_scores
 
 
 def main() -> None:
@@ -65,7 +56,7 @@ def main() -> None:
                     errors[name].append(max(pose_error_deg(sel.pose, p.R, p.t)))
             flow = np.linalg.norm(c.k1 - c.k0, axis=1)
             centre = np.abs(c.k0[:, 0] - c.size0[0] / 2) / (c.size0[0] / 2)
-            for key, v in zip(stats, (flow, centre, c.ratio, sampson_px(c, p.R, p.t)), strict=True):
+            for key, v in zip(stats, (flow, centre, c.ratio, c.focal * sampson_distance(skew(p.t) @ p.R, c.x0, c.x1)), strict=True):
                 stats[key].append((v[inl & selected], v[inl & ~selected]))
         print(f"\n{spec.rsplit('/', 1)[-1]}: AUC@5 of MAGSAC++ on subsets of the labelled inliers ({args.seeds} seeds)")
         for name in subsets:

@@ -12,13 +12,12 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
-import cv2
 import numpy as np
 
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
 from nmnet_ros.evaluate import load_eval_pairs, paired_auc_difference, per_sequence_table
-from nmnet_ros.geometry import PoseEstimate, pose_error_deg, recover_pose, refine_pose
+from nmnet_ros.geometry import PoseEstimate, estimate_essential, pose_error_deg, recover_pose, refine_pose
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
 from nmnet_ros.pairs import to_correspondences
@@ -27,21 +26,12 @@ from nmnet_ros.selectors import DEFAULT_CONFIG, Correspondences, classic_mask, n
 CFG = DEFAULT_CONFIG
 
 
-def magsac(c: Correspondences, fit: np.ndarray, polish: np.ndarray, seed: int, sampler: int) -> PoseEstimate | None:
-    """MAGSAC++ (the package's USAC_MAGSAC settings, ``sampler`` = uniform or PROSAC) on c[fit], polished on c[polish]."""
-    if len(fit) < 8:
-        return None
+def magsac(c: Correspondences, fit: np.ndarray, polish: np.ndarray, seed: int, prosac: bool) -> PoseEstimate | None:
+    """The package's MAGSAC++ on c[fit] (``prosac``: sampled in that order), its pose polished on c[polish]."""
     th = CFG["threshold_px"] / c.focal
-    p = cv2.UsacParams()
-    p.sampler, p.score = sampler, cv2.SCORE_METHOD_MAGSAC
-    p.loMethod, p.loIterations, p.loSampleSize = cv2.LOCAL_OPTIM_SIGMA, 10, 50
-    p.final_polisher, p.final_polisher_iterations = cv2.MAGSAC, 20
-    p.maxIterations, p.confidence, p.threshold, p.randomGeneratorState = CFG["max_iters"], 0.999, th, seed
-    x0, x1 = np.ascontiguousarray(c.x0[fit]), np.ascontiguousarray(c.x1[fit])
-    E, m = cv2.findEssentialMat(x0, x1, np.eye(3), np.eye(3), np.zeros(5), np.zeros(5), p)
-    if E is None or E.shape[0] < 3 or m is None:
-        return None
-    pose = recover_pose(E[:3], x0, x1, m.ravel() > 0)
+    x0, x1 = c.x0[fit], c.x1[fit]
+    est = estimate_essential(x0, x1, "magsac", th, max_iters=CFG["max_iters"], seed=seed, prosac=prosac)
+    pose = recover_pose(est[0], x0, x1, est[1]) if est is not None else None
     return None if pose is None else refine_pose(pose, c.x0[polish], c.x1[polish], th, CFG["refine_iterations"])
 
 
@@ -51,9 +41,9 @@ def by_score(s: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return i[np.argsort(-s[i], kind="stable")]
 
 
-U, P = cv2.SAMPLING_UNIFORM, cv2.SAMPLING_PROSAC
-# name -> (c, scores, calibrated cut) -> (indices MAGSAC++ samples from, indices the polish runs over, sampler)
-Variant = Callable[[Correspondences, np.ndarray, float], tuple[np.ndarray, np.ndarray, int]]
+U, P = False, True  # uniform / PROSAC sampling
+# name -> (c, scores, calibrated cut) -> (indices MAGSAC++ samples from, indices the polish runs over, PROSAC?)
+Variant = Callable[[Correspondences, np.ndarray, float], tuple[np.ndarray, np.ndarray, bool]]
 VARIANTS: dict[str, Variant] = {
     "ratio+magsac": lambda c, s, t: (np.flatnonzero(classic_mask(c)),) * 2 + (U,),
     "nmnet+magsac": lambda c, s, t: (np.flatnonzero(s > t),) * 2 + (U,),
@@ -85,8 +75,8 @@ def main() -> None:
             c = to_correspondences(p)
             _, scores, _ = nmnet_scores(model, c, CFG)
             for name, variant in VARIANTS.items():
-                fit, polish, sampler = variant(c, scores, model.score_threshold)
-                errors[name].append([max(pose_error_deg(magsac(c, fit, polish, s, sampler), p.R, p.t))
+                fit, polish, prosac = variant(c, scores, model.score_threshold)
+                errors[name].append([max(pose_error_deg(magsac(c, fit, polish, s, prosac), p.R, p.t))
                                      for s in range(args.seeds)])
             groups.append(spec.rsplit("/", 1)[-1])
     e = {k: np.array(v) for k, v in errors.items()}
