@@ -161,6 +161,12 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     assert run.returncode == 0, run.stderr
     assert "| AUC@5 per sequence (pairs) | kitti-07:120-122 (2) | kitti-07:123-125 (2) |" in run.stdout
     assert "| oracle | " in run.stdout.split("AUC@5 per sequence")[1] and " [" in run.stdout.split("| ratio | ")[-1]
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "kitti-07").symlink_to(seq)  # a second folder of the same name: labelled in full
+    same = two[:5] + [f"{tmp_path}/other/kitti-07:120-122"] + two[6:]  # in place of the second range: the same range
+    run = subprocess.run(same, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert f"| AUC@5 per sequence (pairs) | {seq}:120-122 (2) | {tmp_path}/other/kitti-07:120-122 (2) |" in run.stdout
     bad = subprocess.run(cmd + ["--reference", "sift"], capture_output=True, text=True)
     assert bad.returncode != 0 and "argument --reference: invalid choice: 'sift'" in bad.stderr
     bad = subprocess.run(cmd + ["--score-threshold", "1.5"], capture_output=True, text=True)
