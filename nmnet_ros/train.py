@@ -46,7 +46,7 @@ DEFAULT_CONFIG: dict = {
     "min_inliers": 5,
     "device": "cpu",  # "cuda" trains on a GPU; neighbours are always mined on the CPU
     "workers": 1,  # threads preparing a batch (neighbour mining releases the GIL)
-    "detector": "hessian-affine",  # local feature frames (the shipped weights: the kornia reference)
+    "detector": "hessian-affine",  # local feature frames (steps 0-2 of the shipped weights; step 3: hessian-affine-fast)
     "label_threshold": LABEL_THRESHOLD,  # inlier when the squared symmetric epipolar distance is below (paper: 1e-4)
     "init": None,  # checkpoint to start from (fine-tuning); None = random initialisation
     "augment": False,  # label-preserving pair augmentation (see ``draw_augmentation``)
