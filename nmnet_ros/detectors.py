@@ -6,8 +6,8 @@ from .fast_hessaff import FastHessianAffine
 from .features import HessianAffine, SiftSimilarity
 
 DETECTORS: dict[str, type] = {
-    "hessian-affine-fast": FastHessianAffine,  # batched OpenCV/torch Hessian-affine (default)
-    "hessian-affine": HessianAffine,  # kornia reference path (what NM-Net was trained on)
+    "hessian-affine-fast": FastHessianAffine,  # batched OpenCV/torch Hessian-affine (default; NM-Net fine-tuned on it last)
+    "hessian-affine": HessianAffine,  # kornia reference path (NM-Net trained on it first, see the model card)
     "sift": SiftSimilarity,  # OpenCV SIFT with similarity frames (the classic baseline's features)
 }
 
