@@ -10,6 +10,7 @@ DETECTORS: dict[str, type] = {
     "hessian-affine": HessianAffine,  # kornia reference path (NM-Net trained on it first, see the model card)
     "sift": SiftSimilarity,  # OpenCV SIFT with similarity frames (the classic baseline's features)
 }
+DEFAULT_DETECTOR = "hessian-affine-fast"  # what the node runs, and so what `nmnet train` trains on unless told
 
 
 def make_detector(name: str, config: dict | None = None):

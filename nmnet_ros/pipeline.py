@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .detectors import make_detector
+from .detectors import DEFAULT_DETECTOR, make_detector
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Features
 from .geometry import Camera, PoseEstimate
@@ -20,7 +20,7 @@ from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, build
 
 DEFAULT_CONFIG: dict = {
-    "detector": "hessian-affine-fast",  # or "hessian-affine" (kornia reference), "sift" (similarity frames)
+    "detector": DEFAULT_DETECTOR,  # or "hessian-affine" (kornia reference), "sift" (similarity frames)
     "max_keypoints": FEATURE_DEFAULTS["max_keypoints"],
     "selector": "nmnet+ratio+magsac",  # any method of nmnet_ros.selectors except 'oracle'
     "weights": None,  # NM-Net weights file; None = shipped

@@ -26,7 +26,7 @@ import torch
 
 from .cache import FeatureCache
 from .datasets import LABEL_THRESHOLD, Sequence, pose_labels
-from .detectors import DETECTORS, make_detector
+from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import apply_homography, homography_jacobian
 from .metrics import prf
 from .model import NMNet, WeightsError, load_model
@@ -46,7 +46,7 @@ DEFAULT_CONFIG: dict = {
     "min_inliers": 5,
     "device": "cpu",  # "cuda" trains on a GPU; neighbours are always mined on the CPU
     "workers": 1,  # threads preparing a batch (neighbour mining releases the GIL)
-    "detector": "hessian-affine",  # local feature frames (steps 0-2 of the shipped weights; step 3: hessian-affine-fast)
+    "detector": DEFAULT_DETECTOR,  # local feature frames: the node's (the shipped steps 0-2 used "hessian-affine")
     "label_threshold": LABEL_THRESHOLD,  # inlier when the squared symmetric epipolar distance is below (paper: 1e-4)
     "init": None,  # checkpoint to start from (fine-tuning); None = random initialisation
     "augment": False,  # label-preserving pair augmentation (see ``draw_augmentation``)
@@ -391,7 +391,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gaps", default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--detector", default=DEFAULT_CONFIG["detector"], choices=sorted(DETECTORS),
-                   help="local feature frames to train on (use the one the node runs)")
+                   help="local feature frames to train on (default: the node's; use the one your node runs)")
     p.add_argument("--label-threshold", type=float, default=DEFAULT_CONFIG["label_threshold"],
                    help="inlier label: squared symmetric epipolar distance below this, normalised coordinates")
     p.add_argument("--init", type=Path, default=None, help="checkpoint to start from (fine-tuning)")
