@@ -142,6 +142,10 @@ def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac",
     uniformly. Returns (E, inlier mask) or None when there are fewer than 8 correspondences or no
     model was found.
     """
+    if method not in ("magsac", "ransac"):  # the arguments first: a bad call fails however few points it has
+        raise ValueError(f"unknown robust estimator {method!r}; use one of ['magsac', 'ransac']")
+    if prosac and method != "magsac":
+        raise ValueError("PROSAC sampling is a MAGSAC++ (USAC) option; use method='magsac'")
     x0n, x1n = _checked_pair(x0n, x1n)
     if len(x0n) < MIN_MATCHES:
         return None
@@ -149,14 +153,10 @@ def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac",
         eye, no_dist = np.eye(3), np.zeros(5)
         E, mask = cv2.findEssentialMat(x0n, x1n, eye, eye, no_dist, no_dist,
                                        _magsac_params(threshold, confidence, max_iters, seed, prosac))
-    elif prosac:
-        raise ValueError("PROSAC sampling is a MAGSAC++ (USAC) option; use method='magsac'")
-    elif method == "ransac":
+    else:
         cv2.setRNGSeed(seed)
         E, mask = cv2.findEssentialMat(x0n, x1n, np.eye(3), method=cv2.RANSAC, prob=confidence,
                                        threshold=threshold, maxIters=max_iters)
-    else:
-        raise ValueError(f"unknown robust estimator {method!r}; use one of ['magsac', 'ransac']")
     if E is None or E.shape[0] < 3 or mask is None:
         return None
     return E[:3], mask.ravel().astype(bool)  # several stacked solutions: the first is the best

@@ -229,11 +229,15 @@ def test_prosac_samples_the_given_order_and_needs_magsac():
     assert max(translation_errors(True)) < min(translation_errors(False))  # the order reaches USAC's sampler
     with pytest.raises(ValueError, match="PROSAC sampling is a MAGSAC"):
         estimate_essential(x0, x1, "ransac", 1e-3, prosac=True)
+    with pytest.raises(ValueError, match="PROSAC sampling is a MAGSAC"):  # refused before the point count
+        estimate_essential(x0[:5], x1[:5], "ransac", 1e-3, prosac=True)
+    with pytest.raises(ValueError, match="unknown robust estimator 'lmeds'"):
+        estimate_essential(x0[:5], x1[:5], "lmeds", 1e-3)
 
 
 def test_sampson_distance_is_zero_on_the_true_model_and_grows_off_it():
     x0, x1, R, t = synthetic(50, seed=5)
-    E = skew(t) @ R
+    E = essential_from_pose(R, t)
     assert np.abs(sampson_distance(E, x0, x1)).max() < 1e-9
     line = np.c_[x0, np.ones(len(x0))] @ E.T  # x1's epipolar lines
     normal = line[:, :2] / np.linalg.norm(line[:, :2], axis=1, keepdims=True)
