@@ -32,7 +32,7 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 
 from .debug_view import draw_matches
-from .detectors import DEFAULT_DETECTOR
+from .detectors import DEFAULT_DETECTOR, DETECTORS
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
 from .pipeline import FrameResult, Frontend
@@ -43,7 +43,7 @@ PARAMS: dict[str, tuple] = {
     # name: (default, description, range or choices)
     "weights": ("", "NM-Net weights file; empty = the weights shipped with the package", None),
     "detector": (DEFAULT_DETECTOR, "local feature frames: hessian-affine-fast (batched, default), hessian-affine "
-                 "(kornia reference, ~1 s/frame), sift (similarity frames)", ("hessian-affine-fast", "hessian-affine", "sift")),
+                 "(kornia reference, ~1 s/frame), sift (similarity frames)", tuple(DETECTORS)),
     "max_keypoints": (2000, "Hessian-affine keypoints per frame", (100, 8000)),
     "k": (8, "compatibility neighbours per correspondence (the shipped network is trained with 8)", (2, 16)),
     "score_threshold": (-1.0, "NM-Net inlier probability above which a match is published; -1 = the threshold "

@@ -69,20 +69,26 @@ def _filtered(c: Correspondences, mask: np.ndarray) -> Selection:
     return Selection(mask, None, recover_pose(E, c.x0, c.x1, mask) if E is not None else None)
 
 
-def _robust(c: Correspondences, keep: np.ndarray, method: str, cfg: dict) -> Selection:
-    """A robust fit on the kept matches, its pose polished on the same matches (sigma = the inlier threshold)."""
-    keep = np.asarray(keep, bool)
+def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, polish: np.ndarray | None = None,
+               prosac: bool = False) -> Selection:
+    """A robust fit on the kept matches, its pose polished on them (sigma = the inlier threshold).
+
+    ``keep``: a boolean mask or indices (in the order PROSAC samples them, best first, with
+    ``prosac``); ``polish``: other matches (mask or indices) to polish the pose over instead.
+    """
+    keep = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep, np.intp)
     mask = np.zeros(len(c), bool)
     threshold = cfg["threshold_px"] / c.focal
     x0, x1 = c.x0[keep], c.x1[keep]
-    est = estimate_essential(x0, x1, method, threshold, max_iters=cfg["max_iters"], seed=cfg["seed"])
+    est = estimate_essential(x0, x1, method, threshold, max_iters=cfg["max_iters"], seed=cfg["seed"], prosac=prosac)
     if est is None:
         return Selection(mask, None, None)
     E, inl = est
     pose = recover_pose(E, x0, x1, inl)
     if pose is not None:
-        pose = refine_pose(pose, x0, x1, threshold, cfg["refine_iterations"])
-    mask[np.flatnonzero(keep)[inl]] = True
+        p0, p1 = (x0, x1) if polish is None else (c.x0[polish], c.x1[polish])
+        pose = refine_pose(pose, p0, p1, threshold, cfg["refine_iterations"])
+    mask[keep[inl]] = True
     return Selection(mask, None, pose)
 
 
@@ -133,7 +139,7 @@ def nmnet_magsac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Co
     _, scores, mask = scored
     if classic:
         mask = mask & classic_mask(c, cfg)
-    sel = _robust(c, mask, "magsac", cfg)
+    sel = robust_fit(c, mask, "magsac", cfg)
     return Selection(sel.mask, scores, sel.pose)
 
 
@@ -224,12 +230,12 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         return lambda c: nmnet_select(model, c, cfg)
     table: dict[str, Callable[..., Selection]] = {
         "ratio": lambda c: _filtered(c, c.ratio < cfg["ratio"]),
-        "ransac": lambda c, seed=None: _robust(c, np.ones(len(c), bool), "ransac", at(seed)),
-        "magsac": lambda c, seed=None: _robust(c, np.ones(len(c), bool), "magsac", at(seed)),
-        "ratio+magsac": lambda c, seed=None: _robust(c, classic_mask(c, cfg), "magsac", at(seed)),
+        "ransac": lambda c, seed=None: robust_fit(c, np.ones(len(c), bool), "ransac", at(seed)),
+        "magsac": lambda c, seed=None: robust_fit(c, np.ones(len(c), bool), "magsac", at(seed)),
+        "ratio+magsac": lambda c, seed=None: robust_fit(c, classic_mask(c, cfg), "magsac", at(seed)),
         "gms": lambda c: _filtered(c, gms_mask(c)),
         "lpm": lambda c: _filtered(c, lpm_mask(c)),
-        "oracle": lambda c, seed=None: _robust(c, c.labels if c.labels is not None else np.zeros(len(c), bool), "magsac",
+        "oracle": lambda c, seed=None: robust_fit(c, c.labels if c.labels is not None else np.zeros(len(c), bool), "magsac",
                                                at(seed)),
     }
     if name not in table:

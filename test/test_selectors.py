@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 
 from nmnet_ros.datasets import Sequence
-from nmnet_ros.geometry import pose_error_deg, rotation_error_deg
+from nmnet_ros.geometry import pose_error_deg, refine_pose, rotation_error_deg
 from nmnet_ros.metrics import prf
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
 from nmnet_ros.pairs import make_pair, to_correspondences
-from nmnet_ros.selectors import DEFAULT_CONFIG, METHODS, build, classic_mask, nmnet_scores
+from nmnet_ros.selectors import DEFAULT_CONFIG, METHODS, build, classic_mask, nmnet_scores, robust_fit
 
 from .conftest import data_dir, robust_cost
 
@@ -199,3 +199,26 @@ def test_pose_refinement_keeps_the_selection_and_lowers_the_robust_cost(pairs):
         moved.append(rotation_error_deg(off.pose.R, ref.pose.R))
     print(f"rotation change by the polish (deg): {np.round(moved, 3)}")
     assert np.median(moved) > 1e-3
+
+
+def test_robust_fit_takes_indices_and_a_separate_polish_set(pairs):
+    """Indices fit as the same mask does; ``polish`` moves the pose only, to a lower cost over that set;
+    ``prosac`` reaches the sampler (another sample order, other inliers on some pair)."""
+    cfg = {**DEFAULT_CONFIG, "seed": 0}
+    prosac_differs = []
+    for p in pairs[:4]:
+        c = to_correspondences(p)
+        keep = classic_mask(c)
+        by_mask, by_index = robust_fit(c, keep, "magsac", cfg), robust_fit(c, np.flatnonzero(keep), "magsac", cfg)
+        assert np.array_equal(by_mask.mask, by_index.mask) and np.array_equal(by_mask.pose.R, by_index.pose.R)
+        wide = np.flatnonzero(keep | (c.ratio < 0.9))
+        polished = robust_fit(c, keep, "magsac", cfg, polish=wide)
+        assert np.array_equal(polished.mask, by_mask.mask)
+        sigma = cfg["threshold_px"] / c.focal
+        unpolished = robust_fit(c, keep, "magsac", {**cfg, "refine_iterations": 0})
+        assert robust_cost(polished.pose, c.x0[wide], c.x1[wide], sigma) <= robust_cost(unpolished.pose, c.x0[wide], c.x1[wide], sigma)
+        over_wide = refine_pose(unpolished.pose, c.x0[wide], c.x1[wide], sigma, cfg["refine_iterations"])
+        assert np.array_equal(polished.pose.R, over_wide.R) and not np.array_equal(polished.pose.R, by_mask.pose.R)
+        order = np.flatnonzero(keep)[np.argsort(-c.ratio[keep])]  # worst first: a bad order for PROSAC
+        prosac_differs.append(not np.array_equal(robust_fit(c, order, "magsac", cfg, prosac=True).mask, by_mask.mask))
+    assert any(prosac_differs)

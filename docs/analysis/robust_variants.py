@@ -17,22 +17,18 @@ import numpy as np
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
 from nmnet_ros.evaluate import load_eval_pairs, paired_auc_difference, per_sequence_table
-from nmnet_ros.geometry import PoseEstimate, estimate_essential, pose_error_deg, recover_pose, refine_pose
+from nmnet_ros.geometry import PoseEstimate, pose_error_deg
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
 from nmnet_ros.pairs import to_correspondences
-from nmnet_ros.selectors import DEFAULT_CONFIG, Correspondences, classic_mask, nmnet_scores
+from nmnet_ros.selectors import DEFAULT_CONFIG, Correspondences, classic_mask, nmnet_scores, robust_fit
 
 CFG = DEFAULT_CONFIG
 
 
 def magsac(c: Correspondences, fit: np.ndarray, polish: np.ndarray, seed: int, prosac: bool) -> PoseEstimate | None:
     """The package's MAGSAC++ on c[fit] (``prosac``: sampled in that order), its pose polished on c[polish]."""
-    th = CFG["threshold_px"] / c.focal
-    x0, x1 = c.x0[fit], c.x1[fit]
-    est = estimate_essential(x0, x1, "magsac", th, max_iters=CFG["max_iters"], seed=seed, prosac=prosac)
-    pose = recover_pose(est[0], x0, x1, est[1]) if est is not None else None
-    return None if pose is None else refine_pose(pose, c.x0[polish], c.x1[polish], th, CFG["refine_iterations"])
+    return robust_fit(c, fit, "magsac", {**CFG, "seed": seed}, polish, prosac).pose
 
 
 def by_score(s: np.ndarray, mask: np.ndarray) -> np.ndarray:
