@@ -19,7 +19,7 @@ import numpy as np
 
 from .cache import FeatureCache
 from .datasets import Sequence
-from .detectors import DETECTORS, make_detector
+from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, to_correspondences
@@ -190,7 +190,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", type=Path, default=None, help="write {method: metrics} as JSON")
     p.add_argument("--plot", type=Path, default=Path("eval_curves.png"), help="recall-vs-error plot (PNG)")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
-    p.add_argument("--detector", default="hessian-affine", choices=sorted(DETECTORS), help="local feature frames")
+    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),
+                   help="local feature frames (default: the node's)")
     p.add_argument("--threshold-px", type=float, default=SELECTOR_DEFAULTS["threshold_px"],
                    help="MAGSAC++/RANSAC inlier threshold in pixels for every robust method")
     p.add_argument("--score-threshold", type=float, default=None,

@@ -14,7 +14,7 @@ import numpy as np
 
 from .cache import FeatureCache
 from .datasets import Sequence
-from .features import HessianAffine
+from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .neighbors import compatibility_neighbors, spatial_neighbors
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs
 from .train import parse_gaps
@@ -61,11 +61,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--k", type=int, default=8)
     p.add_argument("--json", type=Path, default=None, help="write the rows and table as JSON")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
+    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),
+                   help="local feature frames (default: the node's)")
 
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet neighbors``."""
-    cache = FeatureCache(HessianAffine(), args.cache)
+    cache = FeatureCache(make_detector(args.detector), args.cache)
     pairs = []
     for spec in args.seqs:
         path, frames = parse_seq_spec(spec)

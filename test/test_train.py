@@ -9,13 +9,14 @@ import torch
 
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
+from nmnet_ros.evaluate import add_arguments as eval_args
 from nmnet_ros.geometry import apply_homography, essential_from_pose, sym_epipolar_sq
 from nmnet_ros.model import load_model, weights_dir
+from nmnet_ros.neighbor_study import add_arguments as neighbors_args
 from nmnet_ros.neighbors import mine_neighbors
 from nmnet_ros.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
 from nmnet_ros.train import (
     MIN_THINNED_RATIO,
-    add_arguments,
     balanced_bce,
     draw_augmentation,
     draw_turn,
@@ -26,6 +27,7 @@ from nmnet_ros.train import (
     train,
     turn_camera,
 )
+from nmnet_ros.train import add_arguments as train_args
 
 from .conftest import data_dir
 
@@ -68,13 +70,15 @@ def test_train_few_steps_then_resume(tmp_path):
     assert 0 < s2["score_threshold"] < 1 and s2["val_f1"] >= s2["best_val_f1_at_0.5"] - 1e-9
 
 
-def test_train_defaults_to_the_frames_the_front_end_runs():
-    """Weights trained with the defaults suit the node's defaults (kornia-trained weights cost 0.4 AUC@5 there)."""
+@pytest.mark.parametrize("tool, argv", [(train_args, ["--train", "a", "--val", "b", "--out", "c"]),
+                                         (eval_args, ["seq"]), (neighbors_args, ["seq"])])
+def test_tools_default_to_the_frames_the_front_end_runs(tool, argv):
+    """Weights trained and scored with the defaults suit the node's defaults (kornia-trained
+    weights cost 0.4 AUC@5 there); another detector is one flag away."""
     p = argparse.ArgumentParser()
-    add_arguments(p)
-    args = p.parse_args(["--train", "a", "--val", "b", "--out", "c"])
-    assert args.detector == FRONTEND_DEFAULTS["detector"] == "hessian-affine-fast"
-    assert p.parse_args(["--train", "a", "--val", "b", "--out", "c", "--detector", "hessian-affine"]).detector == "hessian-affine"
+    tool(p)
+    assert p.parse_args(argv).detector == FRONTEND_DEFAULTS["detector"] == "hessian-affine-fast"
+    assert p.parse_args(argv + ["--detector", "hessian-affine"]).detector == "hessian-affine"
 
 
 def test_fine_tune_from_shipped_weights_on_the_fast_detector(tmp_path):
