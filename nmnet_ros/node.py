@@ -24,7 +24,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -69,6 +69,26 @@ PARAMS: dict[str, tuple] = {
 }
 
 SELECTORS = {"weighted8": "nmnet", "magsac": "nmnet+magsac", "ratio_magsac": "nmnet+ratio+magsac", "classic": "ratio+magsac"}
+# Fixed once the node runs (subscriptions, thread pools, the start-up camera); every other parameter
+# can be changed with `ros2 param set` and takes effect from the next frame.
+STARTUP_ONLY = ("qos", "use_compressed", "threads", "fx", "fy", "cx", "cy")
+
+
+def frontend_config(p: dict) -> dict:
+    """The front end's config for the node's parameter values."""
+    return {
+        "detector": p["detector"], "max_keypoints": p["max_keypoints"], "selector": SELECTORS[p["pose_estimator"]],
+        "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
+        "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
+        "threshold_px": p["pose_threshold_px"], "refine_iterations": p["pose_refine_iterations"],
+    }
+
+
+def check_choices(p: dict) -> None:
+    """ValueError for a string parameter outside its choices (rclpy checks only types and ranges)."""
+    for name, (_, _, rng) in PARAMS.items():
+        if isinstance(rng, tuple) and isinstance(rng[0], str) and p[name] not in rng:
+            raise ValueError(f"parameter {name}={p[name]!r} is not one of {rng}")
 
 
 @dataclass
@@ -114,22 +134,17 @@ class NMNetNode(Node):
                 d.integer_range = [IntegerRange(from_value=rng[0], to_value=rng[1], step=1)]
             elif isinstance(rng, tuple):
                 d.additional_constraints = "one of: " + ", ".join(rng)
+            if name in STARTUP_ONLY:
+                d.read_only = True  # `ros2 param set` refuses it: set it at start-up
             self.declare_parameter(name, default, d)
         p = {name: self.get_parameter(name).value for name in PARAMS}
-        for name, (_, _, rng) in PARAMS.items():
-            if isinstance(rng, tuple) and isinstance(rng[0], str) and p[name] not in rng:
-                raise ValueError(f"parameter {name}={p[name]!r} is not one of {rng}")
+        check_choices(p)
         self.params = p
         import torch
 
         torch.set_num_threads(p["threads"])
         cv2.setNumThreads(p["threads"])
-        self.frontend = Frontend(None, {
-            "detector": p["detector"], "max_keypoints": p["max_keypoints"], "selector": SELECTORS[p["pose_estimator"]],
-            "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
-            "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
-            "threshold_px": p["pose_threshold_px"], "refine_iterations": p["pose_refine_iterations"],
-        })
+        self.frontend = Frontend(None, frontend_config(p))
         if p["fx"] > 0 and p["fy"] > 0:
             self.frontend.camera = Camera(np.array([[p["fx"], 0, p["cx"]], [0, p["fy"], p["cy"]], [0, 0, 1.0]]))
         self.stats = Stats()
@@ -158,8 +173,26 @@ class NMNetNode(Node):
                          threading.Thread(target=self._relate, name="nmnet-relate", daemon=True)]
         for w in self._workers:
             w.start()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         if self.frontend.camera is None:
             self.get_logger().info("waiting for camera_info (or set fx/fy/cx/cy parameters) before processing frames")
+
+    def _on_set_parameters(self, params: list) -> SetParametersResult:
+        """``ros2 param set``: check the new values, rebuild what they change, or refuse with the reason.
+
+        rclpy has already checked types, ranges and read-only; a refused change leaves everything as it was.
+        """
+        p = {**self.params, **{q.name: q.value for q in params}}
+        try:
+            check_choices(p)
+            self.frontend.reconfigure(frontend_config(p))
+        except (ValueError, KeyError) as e:  # WeightsError is a ValueError: it names the file
+            return SetParametersResult(successful=False, reason=str(e))
+        changed = {q.name: q.value for q in params if self.params.get(q.name) != q.value}
+        self.params = p
+        if changed:
+            self.get_logger().info(f"parameters changed: {changed} (from the next frame)")
+        return SetParametersResult(successful=True)
 
     # -- input ------------------------------------------------------------------------------
     def _warn(self, key: str, text: str, period: float = 5.0) -> None:

@@ -7,6 +7,7 @@ frame's features so each frame is detected once.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,8 +17,9 @@ from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Features
 from .geometry import Camera, PoseEstimate
 from .matching import match_descriptors
+from .model import load_model
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
-from .selectors import Correspondences, build
+from .selectors import Correspondences, Selection, build
 
 DEFAULT_CONFIG: dict = {
     "detector": DEFAULT_DETECTOR,  # or "hessian-affine" (kornia reference), "sift" (similarity frames)
@@ -33,6 +35,20 @@ DEFAULT_CONFIG: dict = {
     "min_matches": 8,
     "static_flow_px": 1.0,  # median flow of the selected matches below this = camera not moving
 }
+
+
+DETECTOR_KEYS = ("detector", "max_keypoints")
+SELECTOR_KEYS = ("selector", "weights", "score_threshold", "k", "threshold_px", "refine_iterations")
+
+
+def _detector(c: dict) -> Callable[[np.ndarray], Features]:
+    return make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]})
+
+
+def _selector(c: dict) -> Callable[[Correspondences], Selection]:
+    if c["weights"] and not c["selector"].startswith("nmnet"):
+        load_model(c["weights"])  # unused by this selector, but a bad file is refused now, not on a later switch
+    return build(c["selector"], {key: c[key] for key in SELECTOR_KEYS[2:]}, {"nmnet": c["weights"]} if c["weights"] else None)
 
 
 @dataclass
@@ -61,11 +77,26 @@ class Frontend:
         self.config = {**DEFAULT_CONFIG, **(config or {})}
         c = self.config
         self.camera = camera
-        self.detector = make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]})
-        weights = {"nmnet": c["weights"]} if c["weights"] else None
-        self.select = build(c["selector"], {key: c[key] for key in ("score_threshold", "k", "threshold_px", "refine_iterations")},
-                            weights)
+        self.detector = _detector(c)
+        self.select = _selector(c)
         self.prev: tuple[float, Features, tuple[int, int]] | None = None
+
+    def reconfigure(self, changes: dict) -> None:
+        """Apply config changes while running (the node's ``ros2 param set``).
+
+        The new detector and selector are built before anything is swapped, so a change that fails
+        (an unreadable weights file, an unknown name) raises and leaves the front end as it was. A new
+        detector restarts the chain: the next frame is a first frame.
+        """
+        unknown = sorted(set(changes) - set(DEFAULT_CONFIG))
+        if unknown:
+            raise KeyError(f"unknown front-end setting(s) {unknown}; known: {', '.join(DEFAULT_CONFIG)}")
+        c = {**self.config, **changes}
+        detector = _detector(c) if any(c[key] != self.config[key] for key in DETECTOR_KEYS) else self.detector
+        select = _selector(c) if any(c[key] != self.config[key] for key in SELECTOR_KEYS) else self.select
+        self.config, self.select = c, select
+        if detector is not self.detector:
+            self.detector, self.prev = detector, None
 
     def reset(self) -> None:
         """Forget the previous frame (the next frame starts a new chain)."""

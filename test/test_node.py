@@ -295,6 +295,59 @@ def test_parameters_from_yaml_and_command_line(ros, tmp_path):
         node.stop()
 
 
+def set_params(peer: Peer, values: dict) -> list:
+    """``ros2 param set`` from the peer: one SetParametersResult per value."""
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    client = AsyncParameterClient(peer.node, "/nmnet_node")
+    assert client.wait_for_services(10.0)
+    fut = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+    rclpy.spin_until_future_complete(peer.node, fut, timeout_sec=30.0)
+    return fut.result().results
+
+
+def published_scores(peer: Peer, stamp: float) -> np.ndarray:
+    """The score column of the ~/matches cloud published for the frame at ``stamp``."""
+    assert peer.wait_result_for(stamp), f"no matches published for the frame at {stamp}"
+    m = next(m for s, (_, m) in zip(peer.stamps(peer.matches), peer.matches, strict=True) if abs(s - stamp) < 1e-6)
+    return np.frombuffer(bytes(m.data), np.float32).reshape(-1, 5)[:, 4]
+
+
+def test_parameters_change_while_running(ros, tmp_path):
+    """`ros2 param set` on a running node: a new NM-Net cut and pose estimator act from the next frame;
+    a bad choice, a missing weights file and a start-up-only parameter are refused with the reason,
+    and the node keeps its settings and keeps running."""
+    seq = Sequence.load(data_dir("kitti-07"))
+    node = NodeProcess(["--ros-args", "-p", "max_keypoints:=1000"], ros, tmp_path / "node.log")
+    peer = Peer()
+    try:
+        peer.wait_connected()
+        peer.first_frame(kitti_info(seq), image_msg(seq.image(40), 1.0))
+
+        def frame(i: int, stamp: float) -> np.ndarray:
+            peer.pub_info.publish(kitti_info(seq))
+            peer.pub_img.publish(image_msg(seq.image(i), stamp))
+            return published_scores(peer, stamp)
+
+        calibrated = frame(41, 2.0)
+        assert calibrated.min() < 0.95 and len(np.unique(calibrated)) > 1  # NM-Net probabilities from the calibrated cut
+        assert all(r.successful for r in set_params(peer, {"score_threshold": 0.95}))
+        assert frame(42, 3.0).min() > 0.95
+        assert all(r.successful for r in set_params(peer, {"pose_estimator": "classic"}))
+        assert np.all(frame(43, 4.0) == 1.0)  # no network: the published score is the selection itself
+        refused = {"matching": "fancy", "weights": str(tmp_path / "missing.pt"), "qos": "reliable"}
+        for (name, value), r in zip(refused.items(), set_params(peer, refused), strict=True):
+            assert not r.successful and (value in r.reason or name in r.reason), (name, r.reason)
+        assert get_params(peer, list(refused) + ["pose_estimator"]) == {"matching": "nn", "weights": "", "qos": "sensor_data",
+                                                                        "pose_estimator": "classic"}
+        assert np.all(frame(44, 5.0) == 1.0)  # still running, still classic
+    finally:
+        peer.close()
+        node.stop()
+    assert "parameters changed: {'score_threshold': 0.95}" in node.output()
+
+
 @pytest.mark.parametrize("name, value", [("matching", "fancy"), ("pose_threshold_px", "0.0"), ("max_keypoints", "lots")],
                          ids=["choice", "range", "type"])
 def test_invalid_parameter_is_a_clear_error(ros, tmp_path, name, value):

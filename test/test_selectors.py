@@ -92,6 +92,38 @@ def test_frontend_passes_its_refine_iterations_to_the_selector():
     assert change > 1e-4
 
 
+def test_frontend_reconfigures_while_running(tmp_path):
+    """Frontend.reconfigure (the node's `ros2 param set`): a new threshold acts on the next pair as a fresh
+    front end's would; a failing change leaves everything as it was; a new detector restarts the chain."""
+    from nmnet_ros.model import WeightsError
+    from nmnet_ros.pipeline import Frontend
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    img = [seq.image(i) for i in (10, 11, 12)]
+    fe = Frontend(seq.camera, {"selector": "ratio+magsac", "threshold_px": 0.1})
+    fe.process(img[0], 0.0)
+    fe.process(img[1], 0.1)
+    select, detector = fe.select, fe.detector
+    fe.reconfigure({"threshold_px": 3.0})
+    assert fe.select is not select and fe.detector is detector and fe.prev is not None
+    fresh = Frontend(seq.camera, {"selector": "ratio+magsac", "threshold_px": 3.0})
+    fresh.process(img[1], 0.1)
+    assert fe.process(img[2], 0.2).num_selected == fresh.process(img[2], 0.2).num_selected
+    select, config = fe.select, dict(fe.config)
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(WeightsError, match="bad.pt"):
+        fe.reconfigure({"weights": str(bad)})  # refused even though ratio+magsac does not use the network
+    with pytest.raises(ValueError, match="unknown detector"):
+        fe.reconfigure({"detector": "orb", "threshold_px": 0.5})
+    with pytest.raises(KeyError, match="thresh"):
+        fe.reconfigure({"thresh": 0.5})
+    assert fe.select is select and fe.config == config and fe.prev is not None
+    fe.reconfigure({"max_keypoints": 500})
+    assert fe.prev is None and fe.process(img[0], 0.3).status == "first_frame"
+    assert fe.process(img[1], 0.4).num_keypoints <= 500
+
+
 def test_score_threshold_trades_recall_for_precision(pairs):
     from nmnet_ros.evaluate import evaluate
 
