@@ -38,7 +38,8 @@ DEFAULT_CONFIG: dict = {
 
 
 DETECTOR_KEYS = ("detector", "max_keypoints")
-SELECTOR_KEYS = ("selector", "weights", "score_threshold", "k", "threshold_px", "refine_iterations")
+SELECTOR_CONFIG = ("score_threshold", "k", "threshold_px", "refine_iterations")  # passed on to selectors.build
+SELECTOR_KEYS = ("selector", "weights", *SELECTOR_CONFIG)
 
 
 def _detector(c: dict) -> Callable[[np.ndarray], Features]:
@@ -48,7 +49,7 @@ def _detector(c: dict) -> Callable[[np.ndarray], Features]:
 def _selector(c: dict) -> Callable[[Correspondences], Selection]:
     if c["weights"] and not c["selector"].startswith("nmnet"):
         load_model(c["weights"])  # unused by this selector, but a bad file is refused now, not on a later switch
-    return build(c["selector"], {key: c[key] for key in SELECTOR_KEYS[2:]}, {"nmnet": c["weights"]} if c["weights"] else None)
+    return build(c["selector"], {key: c[key] for key in SELECTOR_CONFIG}, {"nmnet": c["weights"]} if c["weights"] else None)
 
 
 @dataclass
