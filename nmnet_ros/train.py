@@ -121,7 +121,10 @@ def sample_correspondences(rng: np.random.Generator, labels: np.ndarray, size: i
         return rng.choice(n, size=size, replace=n < size)
     pos, neg = np.flatnonzero(labels), np.flatnonzero(~np.asarray(labels, bool))
     n_pos = max(1, round(rng.uniform(MIN_THINNED_RATIO, ratio) * size))
-    n_neg = size - n_pos
+    # never more negatives than the pair has: a repeated match is its own twin, a perfectly compatible
+    # neighbour no real pair has (the ratio is then the lowest the pair allows)
+    n_neg = min(size - n_pos, len(neg)) if n >= size else size - n_pos
+    n_pos = size - n_neg
     return np.concatenate([rng.choice(pos, size=n_pos, replace=len(pos) < n_pos),
                            rng.choice(neg, size=n_neg, replace=len(neg) < n_neg)])
 
@@ -166,7 +169,9 @@ def draw_sample(rng: np.random.Generator, pair: PairData, c: dict) -> tuple[np.n
     labels, turned, pool = pair.labels, None, None
     if c["turn_deg"] > 0:
         k1, a1, x1, turned_labels, inside = turn_camera(pair, draw_turn(rng, c["turn_deg"]), c["label_threshold"])
-        if turned_labels[inside].sum() >= c["min_inliers"]:  # else turned out of view: the sample stays as it was
+        # the sample stays as it was when the turn leaves too few inliers, or fewer matches than a sample
+        # takes, in view (filling it up would repeat matches: twins, perfectly compatible neighbours)
+        if turned_labels[inside].sum() >= c["min_inliers"] and inside.sum() >= c["num_corr"]:
             labels, turned, pool = turned_labels, (k1, a1, x1), np.flatnonzero(inside)
     drawn = sample_correspondences(rng, labels if pool is None else labels[pool], c["num_corr"], c["thin_inliers"])
     sel = drawn if pool is None else pool[drawn]

@@ -19,6 +19,7 @@ from nmnet_ros.train import (
     MIN_THINNED_RATIO,
     balanced_bce,
     draw_augmentation,
+    draw_sample,
     draw_turn,
     load_pairs,
     network_input,
@@ -264,6 +265,36 @@ def test_thinning_lowers_the_inlier_ratio_with_real_outliers():
     half = [labels[sample_correspondences(rng, labels, 1000, thin=0.5)].mean() for _ in range(400)]
     share = np.mean(np.abs(np.array(half) - labels.mean()) < 0.03)
     assert 0.4 < share < 0.75  # uniform draws near the pair's ratio add a little to the unthinned half
+
+
+def test_a_sample_never_repeats_a_match_of_a_pair_that_has_enough():
+    """A repeated match would be its own twin: a neighbour with zero compatibility error that no real
+    pair has (the old sampler repeated negatives of high-inlier pairs and filled small turned views)."""
+    labels = np.random.default_rng(3).random(2000) < 0.7  # 600 negatives; a thinned sample of 1000 wants up to 950
+    rng = np.random.default_rng(4)
+    ratios = []
+    for _ in range(200):
+        sel = sample_correspondences(rng, labels, 1000, thin=1.0)
+        assert sel.shape == (1000,) and len(np.unique(sel)) == 1000
+        ratios.append(labels[sel].mean())
+    assert min(ratios) == pytest.approx(0.4, abs=0.01)  # as low as the pair's 600 negatives allow
+    assert max(ratios) <= labels.mean() + 0.05
+
+
+def test_a_turn_that_leaves_fewer_matches_in_view_than_a_sample_takes_is_not_used(tmp_path):
+    pair = _fountain_pair(tmp_path)
+    c = {"turn_deg": 60.0, "num_corr": len(pair.labels) - 50, "thin_inliers": 0.5, "augment": False,
+         "label_threshold": 1e-4, "min_inliers": 5}
+    rng = np.random.default_rng(0)
+    turned = 0
+    for _ in range(40):
+        sel, _, turn, labels = draw_sample(rng, pair, c)
+        assert len(sel) == c["num_corr"] and len(np.unique(sel)) == len(sel)
+        turned += turn is not None
+    small = {**c, "num_corr": 300}  # small samples: most turns keep 300 matches in view
+    used = sum(draw_sample(rng, pair, small)[2] is not None for _ in range(40))
+    print(f"turns used: {turned} / 40 at {c['num_corr']} matches per sample, {used} / 40 at 300")
+    assert turned < used
 
 
 def test_thinning_leaves_pairs_already_below_the_floor_alone():
