@@ -97,7 +97,7 @@ def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, g
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(desc=f"replay {bag.name}", unit="frame", file=sys.stderr)
+        bar = tqdm(desc=f"replay {bag.name}", unit="frame", file=sys.stderr, disable=None)  # off when stderr is no terminal (logs, CI)
     t0 = time.perf_counter()
     try:
         for f in frames:
