@@ -17,7 +17,6 @@ from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Features
 from .geometry import Camera, PoseEstimate
 from .matching import match_descriptors
-from .model import load_model
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, Selection, build
 
@@ -47,8 +46,6 @@ def _detector(c: dict) -> Callable[[np.ndarray], Features]:
 
 
 def _selector(c: dict) -> Callable[[Correspondences], Selection]:
-    if c["weights"] and not c["selector"].startswith("nmnet"):
-        load_model(c["weights"])  # unused by this selector, but a bad file is refused now, not on a later switch
     return build(c["selector"], {key: c[key] for key in SELECTOR_CONFIG}, {"nmnet": c["weights"]} if c["weights"] else None)
 
 

@@ -213,12 +213,16 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
     """
     cfg = {**DEFAULT_CONFIG, **(config or {})}
     weights = weights or {}
+    nmnet = name in ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac")
+    variant = "nmnet-sp" if name == "nmnet-sp" else "nmnet"
+    for other, path in weights.items():
+        if path and not (nmnet and other == variant):
+            load_model(path, other)  # unused by this method, but a bad file is refused now, not on a later switch
 
     def at(seed: int | None) -> dict:
         return cfg if seed is None else {**cfg, "seed": seed}
 
-    if name in ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac"):
-        variant = "nmnet-sp" if name == "nmnet-sp" else "nmnet"
+    if nmnet:
         model = FastNMNet(load_model(weights.get(variant), variant))  # exact rewrite, ~2x faster on CPU
         model.config["k"] = cfg.get("k", model.config["k"])
         if model.config["neighbors"] == "compatibility":

@@ -124,6 +124,19 @@ def test_frontend_reconfigures_while_running(tmp_path):
     assert fe.process(img[1], 0.4).num_keypoints <= 500
 
 
+def test_a_bad_weights_file_is_refused_by_every_method(tmp_path):
+    """build() checks every weights file it is given, also one the method does not use: the caller
+    learns now, not when it later switches to a method that loads it."""
+    from nmnet_ros.model import WeightsError
+
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    for name, variant in [("ratio+magsac", "nmnet"), ("nmnet-sp", "nmnet"), ("nmnet", "nmnet-sp")]:
+        with pytest.raises(WeightsError, match="bad.pt"):
+            build(name, weights={variant: str(bad)})
+    assert build("ratio+magsac", weights={"nmnet": None}) is not None  # no file given: nothing to check
+
+
 def test_score_threshold_trades_recall_for_precision(pairs):
     from nmnet_ros.evaluate import evaluate
 
