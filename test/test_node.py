@@ -316,7 +316,8 @@ def published_scores(peer: Peer, stamp: float) -> np.ndarray:
 
 def test_parameters_change_while_running(ros, tmp_path):
     """`ros2 param set` on a running node: a new NM-Net cut and pose estimator act from the next frame;
-    a bad choice, a missing weights file and a start-up-only parameter are refused with the reason,
+    a bad choice, a missing weights file, a start-up-only parameter, a value out of range and one of the
+    wrong type are refused with the reason,
     and the node keeps its settings and keeps running."""
     seq = Sequence.load(data_dir("kitti-07"))
     node = NodeProcess(["--ros-args", "-p", "max_keypoints:=1000"], ros, tmp_path / "node.log")
@@ -336,10 +337,17 @@ def test_parameters_change_while_running(ros, tmp_path):
         assert frame(42, 3.0).min() > 0.95
         assert all(r.successful for r in set_params(peer, {"pose_estimator": "classic"}))
         assert np.all(frame(43, 4.0) == 1.0)  # no network: the published score is the selection itself
-        refused = {"matching": "fancy", "weights": str(tmp_path / "missing.pt"), "qos": "reliable"}
-        for (name, value), r in zip(refused.items(), set_params(peer, refused), strict=True):
-            assert not r.successful and (value in r.reason or name in r.reason), (name, r.reason)
+        missing = str(tmp_path / "missing.pt")
+        refused = {  # name: (value, what the reason says); the type check and its words are rclpy's
+            "matching": ("fancy", "'fancy' is not one of"), "weights": (missing, f"{missing}: weights file not found"),
+            "qos": ("reliable", "read-only parameter: qos"), "pose_threshold_px": (0.0, "pose_threshold_px out of range"),
+            "max_keypoints": ("lots", "Wrong parameter type"),
+        }
+        results = set_params(peer, {name: value for name, (value, _) in refused.items()})
+        for (name, (_, reason)), r in zip(refused.items(), results, strict=True):
+            assert not r.successful and reason in r.reason, (name, r.reason)
         assert get_params(peer, list(refused) + ["pose_estimator"]) == {"matching": "nn", "weights": "", "qos": "sensor_data",
+                                                                        "pose_threshold_px": 0.15, "max_keypoints": 1000,
                                                                         "pose_estimator": "classic"}
         assert np.all(frame(44, 5.0) == 1.0)  # still running, still classic
     finally:
