@@ -167,11 +167,11 @@ def plot_curves(errors: dict[str, np.ndarray], path: Path) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     colors = plt.get_cmap("tab10").colors
+    labels = {name: f"{name} (AUC@5 {100 * pose_auc(e, (5.0,))[0]:.1f})" for name, e in errors.items()}
     for ax, top in zip(axes, (20.0, 5.0), strict=True):
         th = np.linspace(0, top, 201)
         for i, (name, e) in enumerate(errors.items()):
-            label = f"{name} (AUC@5 {100 * pose_auc(e, (5.0,))[0]:.1f})"
-            ax.plot(th, [(e <= t).mean() for t in th], label=label, color=colors[i % 10], ls="-" if i < 10 else "--")
+            ax.plot(th, [(e <= t).mean() for t in th], label=labels[name], color=colors[i % 10], ls="-" if i < 10 else "--")
         ax.set_xlabel("pose error threshold (deg, max of rotation and translation)")
         ax.set_ylabel("fraction of pairs")
         ax.grid(alpha=0.3)
