@@ -69,13 +69,23 @@ def to_gray_float(image: np.ndarray) -> np.ndarray:
             raise ValueError(f"image has {img.shape[2]} channels; expected 1, 3 or 4")
     elif img.ndim != 2:
         raise ValueError(f"image must be (H,W) or (H,W,C), got shape {img.shape}")
+    return np.ascontiguousarray(img, dtype=np.float32) / np.float32(full_scale(image))
+
+
+def full_scale(image: np.ndarray) -> float:
+    """The value of white: 255 for uint8, 1 for float; for uint16 the top of the bits in use.
+
+    A 10-, 12- or 14-bit camera publishes mono16 with white at 1023, 4095 or 16383; read as 16 bits
+    its frames would be 16-64x too dark for the detectors' contrast thresholds (SIFT found no
+    keypoints on a 12-bit KITTI frame). So a uint16 image is scaled by 2**b - 1 for the smallest
+    b >= 8 holding its brightest pixel.
+    """
     if image.dtype == np.uint8:
-        scale = 255.0
-    elif image.dtype == np.uint16:
-        scale = 65535.0
-    else:
-        scale = 1.0
-    return np.ascontiguousarray(img, dtype=np.float32) / np.float32(scale)
+        return 255.0
+    if image.dtype == np.uint16:
+        peak = int(image.max()) if image.size else 0
+        return float(2 ** max(8, peak.bit_length()) - 1)
+    return 1.0
 
 
 class HessianAffine:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-# encoding -> (channels, dtype, conversion to the pipeline's BGR/mono)
+# encoding -> (channels, dtype, conversion to the pipeline's BGR/mono); names as sensor_msgs/image_encodings.h
 ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
     "mono8": (1, np.dtype(np.uint8), None),
     "8uc1": (1, np.dtype(np.uint8), None),
@@ -20,6 +20,14 @@ ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
     "rgb8": (3, np.dtype(np.uint8), cv2.COLOR_RGB2BGR),
     "bgra8": (4, np.dtype(np.uint8), cv2.COLOR_BGRA2BGR),
     "rgba8": (4, np.dtype(np.uint8), cv2.COLOR_RGBA2BGR),
+    # raw sensor mosaics (machine-vision drivers), demosaiced here; the pattern names the top-left 2x2 block
+    **{f"bayer_{p}{bits}": (1, np.dtype(np.uint8 if bits == 8 else np.uint16), getattr(cv2, f"COLOR_Bayer{p.upper()}2BGR"))
+       for p in ("rggb", "bggr", "gbrg", "grbg") for bits in (8, 16)},
+    # packed 4:2:2 (USB/UVC cameras): "yuv422" is UYVY, "yuv422_yuy2" is YUYV
+    "yuv422": (2, np.dtype(np.uint8), cv2.COLOR_YUV2BGR_UYVY),
+    "uyvy": (2, np.dtype(np.uint8), cv2.COLOR_YUV2BGR_UYVY),
+    "yuv422_yuy2": (2, np.dtype(np.uint8), cv2.COLOR_YUV2BGR_YUY2),
+    "yuyv": (2, np.dtype(np.uint8), cv2.COLOR_YUV2BGR_YUY2),
 }
 
 
@@ -35,6 +43,8 @@ def image_to_array(height: int, width: int, encoding: str, step: int, data, is_b
     if height <= 0 or width <= 0:
         raise ImageError(f"image is {width}x{height}: nothing to process (check the camera driver)")
     ch, dtype, conv = ENCODINGS[enc]
+    if ch == 2 and width % 2:
+        raise ImageError(f"{encoding} packs two pixels in four bytes, so its width must be even, got {width}")
     row = width * ch * dtype.itemsize
     if step < row:
         raise ImageError(f"step {step} is smaller than width*channels*bytes = {row} for {encoding}")

@@ -1,0 +1,91 @@
+"""Image payloads -> pixels for every encoding the node and the bag tools accept (no ROS needed)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from nmnet_ros.imgconv import ImageError, image_to_array
+
+from .conftest import data_dir
+
+BGR = (30, 120, 220)  # a flat colour with three different channels: a swapped channel shows
+
+
+def mosaic(pattern: str, shape: tuple[int, int], dtype=np.uint8, scale: int = 1) -> np.ndarray:
+    """A flat-colour BGR image as a raw sensor with the given 2x2 pattern (``pattern[0]`` top left)."""
+    value = {"b": BGR[0], "g": BGR[1], "r": BGR[2]}
+    raw = np.zeros(shape, dtype)
+    for i, colour in enumerate(pattern):
+        raw[i // 2::2, i % 2::2] = value[colour] * scale
+    return raw
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+def test_bayer_images_are_demosaiced_to_their_colours(pattern, bits):
+    dtype, scale = (np.uint8, 1) if bits == 8 else (np.uint16, 256)
+    raw = mosaic(pattern, (12, 16), dtype, scale)
+    img = image_to_array(12, 16, f"bayer_{pattern}{bits}", 16 * raw.itemsize, raw.tobytes())
+    assert img.shape == (12, 16, 3) and img.dtype == dtype
+    np.testing.assert_array_equal(img[2:-2, 2:-2].reshape(-1, 3) // scale, np.tile(BGR, ((12 - 4) * (16 - 4), 1)))
+
+
+@pytest.mark.parametrize("encoding,order", [("yuv422", "uyvy"), ("uyvy", "uyvy"), ("yuv422_yuy2", "yuyv"),
+                                            ("yuyv", "yuyv")])
+def test_packed_yuv422_is_read_in_its_byte_order(encoding, order):
+    # luminance rising left to right, chroma pushing towards red (V > 128) and away from blue (U < 128)
+    h, w = 4, 8
+    y = np.tile(np.linspace(40, 200, w).astype(np.uint8), (h, 1))
+    packed = np.empty((h, w * 2), np.uint8)
+    u, v = 100, 170
+    if order == "uyvy":
+        packed[:, 0::4], packed[:, 1::2], packed[:, 2::4] = u, y, v
+    else:
+        packed[:, 1::4], packed[:, 0::2], packed[:, 3::4] = u, y, v
+    img = image_to_array(h, w, encoding, w * 2, packed.tobytes()).astype(int)
+    assert img.shape == (h, w, 3)
+    assert (img[..., 2] > img[..., 1]).all() and (img[..., 2] > img[..., 0]).all()  # red dominates everywhere
+    assert (np.diff(img.mean(2), axis=1) > 0).all()  # and brightness follows Y along each row
+
+
+def test_an_odd_width_yuv422_image_is_refused():
+    with pytest.raises(ImageError, match="width must be even, got 7"):
+        image_to_array(2, 7, "yuv422", 16, bytes(32))
+
+
+def test_rows_with_padding_big_endian_and_rgb_are_read_right():
+    mono = np.arange(12, dtype=">u2").reshape(3, 4)
+    padded = np.zeros((3, 10), np.uint8)  # 8 bytes of pixels + 2 of padding per row
+    padded[:, :8] = mono.view(np.uint8).reshape(3, 8)
+    out = image_to_array(3, 4, "mono16", 10, padded.tobytes(), is_bigendian=1)
+    np.testing.assert_array_equal(out, mono.astype(np.uint16))
+    rgb = np.zeros((2, 2, 3), np.uint8)
+    rgb[..., 0] = 200  # red first in rgb8
+    np.testing.assert_array_equal(image_to_array(2, 2, "rgb8", 6, rgb.tobytes())[..., 2], 200)
+
+
+@pytest.mark.parametrize("fields,needle", [
+    ((2, 2, "bayer_xyz8", 2, bytes(4)), "unsupported image encoding 'bayer_xyz8'; publish one of mono8"),
+    ((2, 4, "bayer_rggb16", 8, bytes(10)), "the message is truncated"),
+    ((2, 4, "bgr8", 4, bytes(24)), "step 4 is smaller than width*channels*bytes = 12"),
+])
+def test_bad_payloads_say_what_is_wrong(fields, needle):
+    with pytest.raises(ImageError) as err:
+        image_to_array(*fields)
+    assert needle in str(err.value)
+
+
+@pytest.mark.parametrize("name", ["sift", "hessian-affine-fast"])
+def test_a_12_bit_camera_in_mono16_gives_the_features_of_its_8_bit_frame(name):
+    """A 12-bit camera's mono16 frames (white = 4095) are not 16x too dark for the detectors."""
+    from nmnet_ros.detectors import make_detector
+
+    path = sorted((data_dir("kitti-07") / "images").iterdir())[0]
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    twelve = (gray.astype(np.uint16) << 4) | (gray.astype(np.uint16) >> 4)  # 0..255 -> 0..4095
+    det = make_detector(name, {"max_keypoints": 2000})
+    eight, deep = det(gray), det(twelve)
+    assert len(eight.keypoints) > 500
+    assert abs(len(deep.keypoints) - len(eight.keypoints)) <= 0.02 * len(eight.keypoints)
