@@ -10,7 +10,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
-    package_data={PACKAGE: ["weights/*.pt", "weights/*.md", "sample/*", "sample/*/*"]},
+    package_data={PACKAGE: ["weights/*.pt", "weights/*.md", "sample/*", "sample/*/*", "*.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -19,6 +19,7 @@ import numpy as np
 
 from .bags import BagError, BagReader, pick_topic, pose_from_msg, typestore
 from .datasets import quat_to_rot
+from .dds import LARGE_FRAMES_PROFILE
 from .geometry import pose_auc, relative_pose, rotation_error_deg, translation_error_deg
 from .mcap_out import McapOutput
 
@@ -38,6 +39,7 @@ def live_env() -> dict[str, str]:
     env.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "LARGE_DATA")
+    env.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", str(LARGE_FRAMES_PROFILE))  # raw frames over 0.5 MB (see dds.py)
     return env
 
 
@@ -56,7 +58,8 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
         raise BagError(f"{bag}: no image topic; the bag has: {', '.join(sorted(reader.topics))}")
     compressed = reader.topics[img_t].endswith("CompressedImage")
     env = live_env()
-    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTDDS_BUILTIN_TRANSPORTS")})
+    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTDDS_BUILTIN_TRANSPORTS",
+                                           "FASTDDS_DEFAULT_PROFILES_FILE")})
     args = ["--ros-args", "-r", f"__node:={NODE_NAME}", "-p", f"use_compressed:={str(compressed).lower()}"]
     in_topic = "image/compressed" if compressed else "image"
     args += ["-r", f"{in_topic}:=/live/{in_topic}", "-r", "camera_info:=/live/camera_info", *(node_args or [])]

@@ -28,9 +28,10 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 
+from .dds import LARGE_FRAME_BYTES, follow_reliability, large_frames_advice, silence_advice
 from .debug_view import draw_matches
 from .detectors import DEFAULT_DETECTOR, DETECTORS
 from .geometry import Camera, CameraError
@@ -57,7 +58,9 @@ PARAMS: dict[str, tuple] = {
                           "pairs; raise it for a poorly calibrated or rolling-shutter camera)", (0.05, 10.0)),
     "pose_refine_iterations": (SELECTOR_DEFAULTS["refine_iterations"], "Levenberg-Marquardt steps polishing the pose "
                                "on the Cauchy-robust Sampson error after MAGSAC++ (0 = off)", (0, 50)),
-    "qos": ("sensor_data", "input QoS: sensor_data (best effort, depth 5) or reliable (depth 10)", ("sensor_data", "reliable")),
+    "qos": ("auto", "input QoS: auto (images reliable when every image publisher offers it, else best effort, "
+                    "re-checked every second), sensor_data (best effort, depth 5) or reliable (depth 10)",
+            ("auto", "sensor_data", "reliable")),
     "use_compressed": (False, "subscribe image/compressed (sensor_msgs/CompressedImage) instead of image", None),
     "threads": (1, "CPU threads per pipeline stage (torch and OpenCV); detection and the rest run in parallel, "
                    "so 1 fills 2 cores", (1, 64)),
@@ -155,17 +158,20 @@ class NMNetNode(Node):
         self._size: tuple[int, int] | None = None
         self._warned: dict[str, float] = {}
 
-        qos = qos_profile_sensor_data if p["qos"] == "sensor_data" else QoSProfile(depth=10)
-        if p["use_compressed"]:
-            self.create_subscription(CompressedImage, "image/compressed", self._on_image, qos)
-        else:
-            self.create_subscription(Image, "image", self._on_image, qos)
-        self.create_subscription(CameraInfo, "camera_info", self._on_info, qos)
+        self._image_type, self._image_topic = (CompressedImage, "image/compressed") if p["use_compressed"] else (Image, "image")
+        self._image_sub = None
+        self._subscribe_image(reliable=p["qos"] == "reliable")
+        self._silent_s = 0  # seconds with image publishers but no frame
+        self._received_before = 0
+        self._large_hint = False
+        # camera_info is small: best effort matches publishers of either kind and loses nothing here
+        self.create_subscription(CameraInfo, "camera_info", self._on_info,
+                                 QoSProfile(depth=10) if p["qos"] == "reliable" else qos_profile_sensor_data)
         self.pub_matches = self.create_publisher(PointCloud2, "~/matches", 10)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "~/relative_pose", 10)
         self.pub_debug = self.create_publisher(Image, "~/debug_image", 2)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_timer(1.0, self._publish_diagnostics)
+        self.create_timer(1.0, self._tick)
         # Two stages on two threads: detection of frame t+1 overlaps matching/NM-Net/pose of frame t
         # (OpenCV and torch release the GIL). Each frame's features are computed once and handed over.
         self._ready: _Detected | None = None
@@ -195,6 +201,29 @@ class NMNetNode(Node):
         return SetParametersResult(successful=True)
 
     # -- input ------------------------------------------------------------------------------
+    def _subscribe_image(self, reliable: bool) -> None:
+        """(Re)create the image subscription with the given reliability."""
+        if self._image_sub is not None:
+            self.destroy_subscription(self._image_sub)
+        qos = QoSProfile(depth=10) if reliable else qos_profile_sensor_data
+        self._image_sub = self.create_subscription(self._image_type, self._image_topic, self._on_image, qos)
+        self.image_reliable = reliable
+
+    def _tick(self) -> None:
+        """Every second: follow the image publishers' reliability (qos auto), say when frames stop, diagnostics."""
+        topic = self._image_sub.topic_name
+        offers = [i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in self.get_publishers_info_by_topic(topic)]
+        if self.params["qos"] == "auto" and follow_reliability(offers) != self.image_reliable:
+            self._subscribe_image(follow_reliability(offers))
+            self.get_logger().info(f"image publishers on {topic}: {sum(offers)} of {len(offers)} reliable; subscribing "
+                                   + ("reliable" if self.image_reliable else "best effort"))
+        self._silent_s = self._silent_s + 1 if offers and self.stats.received == self._received_before else 0
+        self._received_before = self.stats.received
+        if self._silent_s >= 5:
+            self._warn("no_frames", f"{len(offers)} publisher(s) on {topic} but no frame for {self._silent_s} s: "
+                                    + silence_advice(self.image_reliable, offers), period=30.0)
+        self._publish_diagnostics()
+
     def _warn(self, key: str, text: str, period: float = 5.0) -> None:
         """Warning counted per kind in diagnostics; the same message (numbers aside) at most once per period."""
         self.stats.warnings[key] = self.stats.warnings.get(key, 0) + 1
@@ -220,6 +249,10 @@ class NMNetNode(Node):
     def _on_image(self, msg) -> None:
         """Executor callback: O(1), puts the message in the latest-frame slot."""
         self.stats.received += 1
+        if not self.image_reliable and not self._large_hint and len(msg.data) > LARGE_FRAME_BYTES:
+            self._large_hint = True  # said once: with a large-frames profile on the camera's side they all arrive
+            self.get_logger().info(f"frames of {len(msg.data) / 1e6:.1f} MB on a best-effort subscription: "
+                                   f"{large_frames_advice()}")
         with self._cv:
             if self._slot is not None:
                 self.stats.dropped += 1
@@ -348,6 +381,7 @@ class NMNetNode(Node):
             "frames_received": s.received, "frames_processed": s.processed, "frames_dropped": s.dropped,
             "poses_published": s.published, "rate_hz": round(s.processed / elapsed, 3),
             "latency_p50_ms": round(float(np.percentile(lat, 50)), 1), "latency_p90_ms": round(float(np.percentile(lat, 90)), 1),
+            "input_qos": "reliable" if self.image_reliable else "best_effort",
             "keypoints": s.last_keypoints, "matches": s.last_matches, "selected": s.last_selected, "last_status": s.last_status,
             **{f"stage_{k}_ms": round(float(np.median(v)), 1) for k, v in s.stage_ms.items()},
             **{f"warn_{k}": v for k, v in s.warnings.items()},

@@ -230,6 +230,12 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
         assert wait_diag(peer, "warn_size_changed", 2)
         peer.pub_img.publish(image_msg(img2, 16.0))
         assert peer.wait_result_for(16.0), "node did not recover after bad input"
+        big = image_msg(img2.astype(np.uint16) << 4, 20.0)  # 0.9 MB on best effort: some arrive, the node says why not all
+        for n in range(50):
+            big.header.stamp.sec = 20 + n
+            peer.pub_img.publish(big)
+            if spin_until(peer.node, lambda: "on a best-effort subscription" in node.output(), 0.2):
+                break
         assert node.alive()
     finally:
         peer.close()
@@ -237,7 +243,8 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
     out = node.output()
     assert "Traceback" not in out
     for needle in ("unsupported image encoding", "truncated", "0x0", "focal lengths", "NaN", "duplicate_stamp",
-                   "out_of_order_stamp", "not moving", "frame size changed"):
+                   "out_of_order_stamp", "not moving", "frame size changed", "frames of 0.9 MB on a best-effort subscription",
+                   "FASTDDS_DEFAULT_PROFILES_FILE="):
         assert needle in out, f"no clear warning containing {needle!r}:\n{out}"
 
 
@@ -263,6 +270,66 @@ def test_corrupt_jpeg_is_skipped(ros, tmp_path):
         peer.close()
         node.stop()
     assert "cannot decode compressed image" in node.output()
+
+
+def test_a_reliable_camera_with_large_raw_frames_is_followed(ros, tmp_path):
+    """qos auto subscribes reliable to a reliable camera, so frames over 0.5 MB arrive (best effort loses them).
+
+    The frames are the raw encodings of machine-vision drivers: bgr8 (1.4 MB), a 12-bit camera's
+    mono16 (0.9 MB) and a Bayer mosaic.
+    """
+    seq = Sequence.load(data_dir("kitti-07"))
+    node = NodeProcess([], ros, tmp_path / "node.log")
+    peer = Peer(reliable=True)
+    try:
+        peer.wait_connected()
+        assert spin_until(peer.node, lambda: peer.diag_values().get("input_qos") == "reliable", 10.0)
+        spin_until(peer.node, lambda: False, 0.5)  # the new subscription's discovery
+        colour = [np.dstack([seq.image(i)] * 3) for i in (80, 81)]
+        peer.first_frame(kitti_info(seq), image_msg(colour[0], 1.0))
+        frames = {2.0: image_msg(colour[1], 2.0), 3.0: image_msg(seq.image(82).astype(np.uint16) << 4, 3.0),
+                  4.0: image_msg(seq.image(83), 4.0, encoding="bayer_rggb8")}
+        for stamp, msg in frames.items():
+            peer.pub_img.publish(msg)
+            assert peer.wait_result_for(stamp), f"no result for the {msg.encoding} frame ({len(msg.data)} bytes)"
+        assert peer.count("warn_bad_image") == 0 and peer.count("warn_no_frames") == 0
+    finally:
+        peer.close()
+        assert node.stop(signal.SIGTERM) == 0
+    assert "subscribing reliable" in node.output()
+
+
+def test_a_camera_the_node_cannot_match_is_explained(ros, tmp_path):
+    """A reliable subscription (qos:=reliable) never matches a best-effort camera: the node says so and why."""
+    seq = Sequence.load(data_dir("kitti-07"))
+    node = NodeProcess(["--ros-args", "-p", "qos:=reliable"], ros, tmp_path / "node.log")
+    peer = Peer(reliable=False)
+    try:
+        assert spin_until(peer.node, lambda: bool(peer.diag), 30.0), "the node published no diagnostics"
+        img = seq.image(90)
+        for n in range(60):  # 5 Hz for up to 12 s; the node speaks up after 5 s without a frame
+            peer.pub_info.publish(kitti_info(seq))
+            peer.pub_img.publish(image_msg(img, 1.0 + n))
+            if spin_until(peer.node, lambda: peer.count("warn_no_frames") > 0, 0.2):
+                break
+        assert peer.count("warn_no_frames") > 0 and peer.count("frames_received") == 0
+        assert node.alive()
+    finally:
+        peer.close()
+        assert node.stop(signal.SIGTERM) == 0
+    out = node.output()
+    assert "1 publisher(s) on /image but no frame for 5 s" in out and "do not match; use qos:=auto" in out, out
+
+
+def test_the_subscription_follows_the_publishers_and_the_advice_fits_the_case():
+    from nmnet_ros.dds import LARGE_FRAMES_PROFILE, follow_reliability, silence_advice
+
+    assert [follow_reliability(o) for o in ([], [True], [True, True], [True, False], [False])] == [False, True, True, False,
+                                                                                                   False]
+    assert "do not match" in silence_advice(True, [True, False])
+    assert f"FASTDDS_DEFAULT_PROFILES_FILE={LARGE_FRAMES_PROFILE}" in silence_advice(False, [False])
+    assert "stopped publishing" in silence_advice(True, [True])
+    assert LARGE_FRAMES_PROFILE.is_file()
 
 
 def get_params(peer: Peer, names: list[str]) -> dict:
@@ -346,7 +413,7 @@ def test_parameters_change_while_running(ros, tmp_path):
         results = set_params(peer, {name: value for name, (value, _) in refused.items()})
         for (name, (_, reason)), r in zip(refused.items(), results, strict=True):
             assert not r.successful and reason in r.reason, (name, r.reason)
-        assert get_params(peer, list(refused) + ["pose_estimator"]) == {"matching": "nn", "weights": "", "qos": "sensor_data",
+        assert get_params(peer, list(refused) + ["pose_estimator"]) == {"matching": "nn", "weights": "", "qos": "auto",
                                                                         "pose_threshold_px": 0.15, "max_keypoints": 1000,
                                                                         "pose_estimator": "classic"}
         assert np.all(frame(44, 5.0) == 1.0)  # still running, still classic

@@ -1,0 +1,42 @@
+"""DDS facts the node and the live player share (no ROS imports).
+
+Measured with the ROS 2 Kilted wheels (Fast DDS 3.2.3) on one machine, 20 frames at 5 Hz, with
+``FASTDDS_BUILTIN_TRANSPORTS=LARGE_DATA`` on both ends: a best-effort subscription received every
+frame up to 0.52 MB but only 6 of 20 at 0.6 MB and 0-3 of 20 at 1.4 MB from a best-effort
+publisher, 0 of 20 at 1.4 MB from a reliable one (Fast DDS's shared-memory segment is 512 KB). A
+reliable subscription to a reliable publisher received 20 of 20, and so did a best-effort one when
+the publisher ran with :data:`LARGE_FRAMES_PROFILE` (a 16 MB segment), at 1.4 and 2.8 MB.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+LARGE_FRAMES_PROFILE = Path(__file__).with_name("fastdds_large_frames.xml")
+LARGE_FRAME_BYTES = 512 * 1024  # above this, best effort over Fast DDS's default shared memory loses frames
+
+
+def large_frames_advice() -> str:
+    """What happens to large frames on a best-effort subscription, and the two ways out."""
+    return ("a best-effort subscription loses most frames larger than about 0.5 MB over Fast DDS's default shared "
+            "memory (640x480 bgr8 is 0.9 MB): publish the images reliable (qos:=auto follows), or start the camera "
+            f"driver with FASTDDS_DEFAULT_PROFILES_FILE={LARGE_FRAMES_PROFILE}")
+
+
+def follow_reliability(publishers_reliable: list[bool]) -> bool:
+    """Subscribe reliable only when there are publishers and every one of them offers reliable.
+
+    A reliable subscription does not match a best-effort publisher; a best-effort one matches both,
+    but loses large frames, so it is the choice while any publisher is best effort or none is known.
+    """
+    return bool(publishers_reliable) and all(publishers_reliable)
+
+
+def silence_advice(subscribed_reliable: bool, publishers_reliable: list[bool]) -> str:
+    """Why image publishers exist but no frame arrives, and what to do."""
+    if subscribed_reliable and not all(publishers_reliable):
+        return ("a publisher offers best effort and this node subscribes reliable (qos:=reliable), which do not match; "
+                "use qos:=auto or qos:=sensor_data")
+    if not subscribed_reliable:
+        return large_frames_advice() + "; or the camera stopped publishing"
+    return "the camera may have stopped publishing"
