@@ -283,8 +283,20 @@ def main(args: argparse.Namespace) -> int:
         print(f"plot: {p}")
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
-        args.json.write_text(json.dumps(summary, indent=1))
+        args.json.write_text(summary_json(summary))
     return 130 if interrupted else 0
+
+
+def summary_json(summary: dict) -> str:
+    """JSON text of a summary; a NaN (no pair scored) is written as null, which every JSON parser reads."""
+    def clean(v):
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        return None if isinstance(v, float) and not np.isfinite(v) else v
+
+    return json.dumps(clean(summary), indent=1, allow_nan=False)
 
 
 def main_live(args: argparse.Namespace, out: McapOutput) -> int:
@@ -315,5 +327,5 @@ def main_live(args: argparse.Namespace, out: McapOutput) -> int:
               f"{summary['auc20']:.1f}")
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
-        args.json.write_text(json.dumps(summary, indent=1))
+        args.json.write_text(summary_json(summary))
     return 0

@@ -211,3 +211,13 @@ def test_live_replay_delivers_raw_frames_over_half_a_megabyte(tmp_path):
     assert s["frames"] == 6 and s["processed"] == 6, s
     assert read_output(tmp_path / "live.mcap")["/nmnet_node/matches"] == 5
 
+
+def test_a_summary_without_scored_pairs_is_strict_json():
+    from nmnet_ros.replay import summary_json
+
+    def refuse(name):
+        raise AssertionError(f"{name} is not JSON")
+
+    text = summary_json({"auc5": float("nan"), "nmnet": {"auc10": float("inf"), "per_frame": [1.5, float("nan")]}, "frames": 6})
+    assert json.loads(text, parse_constant=refuse) == {"auc5": None, "nmnet": {"auc10": None, "per_frame": [1.5, None]},
+                                                       "frames": 6}
