@@ -67,11 +67,11 @@ def _messages_for_frame(ts, seq: Sequence, i: int, compressed: bool, ros1: bool)
     cam = seq.camera
     K = cam.K.ravel()
     P = np.c_[cam.K, np.zeros(3)].ravel()
-    dist = np.resize(cam.dist, 5) if cam.dist.size else np.zeros(5)
+    dist = cam.distortion_for_msg()
     Roi = ts.types["sensor_msgs/msg/RegionOfInterest"]
     names = ("D", "K", "R", "P") if ros1 else ("d", "k", "r", "p")
     info = ts.types["sensor_msgs/msg/CameraInfo"](
-        header=hdr, height=img.shape[0], width=img.shape[1], distortion_model="plumb_bob",
+        header=hdr, height=img.shape[0], width=img.shape[1], distortion_model=cam.model,
         **dict(zip(names, (dist, K, np.eye(3).ravel(), P), strict=True)),
         binning_x=0, binning_y=0, roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
     out.append((TOPICS["info"], "sensor_msgs/msg/CameraInfo", info))
@@ -329,7 +329,8 @@ def camera_from_msg(msg) -> Camera:
     K = getattr(msg, "K", None) if K is None else K
     D = getattr(msg, "d", None)
     D = getattr(msg, "D", None) if D is None else D
-    return Camera(np.asarray(K, np.float64).reshape(3, 3), np.asarray(D, np.float64), int(msg.width), int(msg.height))
+    return Camera(np.asarray(K, np.float64).reshape(3, 3), np.asarray(D, np.float64), int(msg.width), int(msg.height),
+                  getattr(msg, "distortion_model", ""))
 
 
 def pose_from_msg(msg) -> np.ndarray:

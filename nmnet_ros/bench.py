@@ -159,7 +159,7 @@ def bench_pipeline(frames: list[np.ndarray], camera, sizes: tuple[int, ...] = (1
         K = camera.K.copy()
         K[0] *= w / frames[0].shape[1]
         K[1] *= h / frames[0].shape[0]
-        cam = Camera(K, camera.dist, w, h)
+        cam = Camera(K, camera.dist, w, h, camera.model)
         for n in sizes:
             st, feats = _stages(FastHessianAffine({"max_keypoints": n}), model, magsac, cam, imgs, jpegs)
             row: dict = {k: {"median": float(np.median(v)), "p90": float(np.percentile(v, 90))} for k, v in st.items()}

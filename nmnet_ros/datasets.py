@@ -30,10 +30,7 @@ def read_camera_yaml(path: Path) -> Camera:
         d = yaml.safe_load(path.read_text())
         K = np.array(d["camera_matrix"]["data"], np.float64).reshape(3, 3)
         dist = np.array(d.get("distortion_coefficients", {}).get("data", []) or [], np.float64)
-        model = d.get("distortion_model", "plumb_bob")
-        if model not in ("plumb_bob", "rational_polynomial", "", None):
-            raise DatasetError(f"{path}: distortion_model {model!r} not supported (use plumb_bob)")
-        return Camera(K, dist, int(d.get("image_width", 0)), int(d.get("image_height", 0)))
+        return Camera(K, dist, int(d.get("image_width", 0)), int(d.get("image_height", 0)), d.get("distortion_model") or "")
     except (KeyError, TypeError, yaml.YAMLError) as e:
         raise DatasetError(f"{path}: malformed camera YAML ({e})") from e
     except CameraError as e:

@@ -16,18 +16,28 @@ class CameraError(ValueError):
     """Invalid intrinsics (zeros, NaN, wrong shape)."""
 
 
+# camera_info distortion models (sensor_msgs/distortion_models.h) this camera model undistorts
+DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
+
+
 @dataclass
 class Camera:
-    """Pinhole camera with optional plumb_bob (k1 k2 p1 p2 k3) distortion."""
+    """Pinhole camera with optional distortion: plumb_bob / rational_polynomial (OpenCV's k1 k2 p1 p2 k3 ...)
+    or equidistant (the fisheye model, k1..k4, as camera_info names it)."""
 
     K: np.ndarray
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
     width: int = 0
     height: int = 0
+    model: str = "plumb_bob"
 
     def __post_init__(self) -> None:
         self.K = np.asarray(self.K, np.float64)
         self.dist = np.asarray(self.dist, np.float64).ravel()
+        self.model = self.model or "plumb_bob"  # an empty distortion_model is the usual "no distortion"
+        if self.model not in DISTORTION_MODELS:
+            raise CameraError(f"distortion model {self.model!r} is not supported; use one of {', '.join(DISTORTION_MODELS)}, "
+                              "or rectify the images and publish zero distortion")
         if self.K.shape != (3, 3):
             raise CameraError(f"K must be 3x3, got shape {self.K.shape}")
         if not np.all(np.isfinite(self.K)) or not np.all(np.isfinite(self.dist)):
@@ -35,6 +45,8 @@ class Camera:
         if self.K[0, 0] <= 0 or self.K[1, 1] <= 0 or self.K[2, 2] == 0:
             raise CameraError(f"camera focal lengths must be positive, got fx={self.K[0, 0]}, fy={self.K[1, 1]}: "
                               "is the camera calibrated (camera_info K all zero)?")
+        if self.model == "equidistant" and self.dist.size not in (0, 4):
+            raise CameraError(f"equidistant (fisheye) distortion has 4 coefficients k1..k4, got {self.dist.size}")
         if self.dist.size not in (0, 4, 5, 8, 12, 14):
             raise CameraError(f"distortion must have 0/4/5/8/12/14 coefficients, got {self.dist.size}")
 
@@ -50,7 +62,15 @@ class Camera:
             return np.zeros((0, 2))
         if not np.any(self.dist):
             return (pts - self.K[:2, 2]) / np.diag(self.K)[:2]
+        if self.model == "equidistant":
+            return cv2.fisheye.undistortPoints(pts[:, None], self.K, self.dist).reshape(-1, 2)
         return cv2.undistortPoints(pts[:, None], self.K, self.dist).reshape(-1, 2)
+
+    def distortion_for_msg(self) -> np.ndarray:
+        """The D of a camera_info message: plumb_bob padded with zeros to its 5 coefficients."""
+        if self.model == "plumb_bob" and self.dist.size < 5:
+            return np.r_[self.dist, np.zeros(5 - self.dist.size)]
+        return self.dist
 
 
 def _checked_pair(x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -235,10 +235,8 @@ class NMNetNode(Node):
 
     def _on_info(self, msg: CameraInfo) -> None:
         try:
-            model = msg.distortion_model or "plumb_bob"
-            if model not in ("plumb_bob", "rational_polynomial"):
-                raise CameraError(f"distortion model {model!r} is not supported (use plumb_bob)")
-            cam = Camera(np.array(msg.k, np.float64).reshape(3, 3), np.array(msg.d, np.float64), msg.width, msg.height)
+            cam = Camera(np.array(msg.k, np.float64).reshape(3, 3), np.array(msg.d, np.float64), msg.width, msg.height,
+                         msg.distortion_model)
         except (CameraError, ValueError) as e:
             self._warn("bad_camera_info", f"ignoring camera_info: {e}")
             return

@@ -221,3 +221,28 @@ def test_a_summary_without_scored_pairs_is_strict_json():
     text = summary_json({"auc5": float("nan"), "nmnet": {"auc10": float("inf"), "per_frame": [1.5, float("nan")]}, "frames": 6})
     assert json.loads(text, parse_constant=refuse) == {"auc5": None, "nmnet": {"auc10": None, "per_frame": [1.5, None]},
                                                        "frames": 6}
+
+
+@pytest.mark.parametrize("model, dist, written", [
+    ("equidistant", [0.05, -0.01, 0.003, -0.0005], [0.05, -0.01, 0.003, -0.0005]),  # fisheye: k1..k4 as given
+    ("plumb_bob", [-0.28, 0.07, 0.0002, 0.00002], [-0.28, 0.07, 0.0002, 0.00002, 0.0]),  # k3 = 0, not a repeat of k1
+])
+@pytest.mark.parametrize("fmt", ["mcap", "ros1"])
+def test_the_lens_model_travels_through_a_bag(tmp_path, fmt, model, dist, written):
+    import yaml
+
+    src = data_dir("kitti-07")
+    seq_dir = tmp_path / "seq"
+    (seq_dir / "images").mkdir(parents=True)
+    names = sorted((src / "images").iterdir())[:2]
+    for p in names:
+        shutil.copy(p, seq_dir / "images" / p.name)
+    (seq_dir / "images.txt").write_text("".join(f"{i * 0.1:.1f} images/{p.name}\n" for i, p in enumerate(names)))
+    cam = yaml.safe_load((src / "camera.yaml").read_text())
+    cam["distortion_model"], cam["distortion_coefficients"] = model, {"rows": 1, "cols": len(dist), "data": dist}
+    (seq_dir / "camera.yaml").write_text(yaml.safe_dump(cam))
+    bag = tmp_path / ("b.bag" if fmt == "ros1" else "b")
+    assert make_bag(seq_dir, bag, fmt) == 2
+    frames = list(read_frames(BagReader(bag))[0])
+    assert [f.camera.model for f in frames] == [model, model]
+    np.testing.assert_allclose(frames[0].camera.dist, written)

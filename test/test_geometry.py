@@ -170,6 +170,34 @@ def test_distortion_normalisation_roundtrip():
     np.testing.assert_allclose(cam.normalize(px), pts_n, atol=1e-5)
 
 
+def test_fisheye_equidistant_normalisation_roundtrip():
+    import cv2
+
+    D = [0.05, -0.01, 0.003, -0.0005]  # Kannala-Brandt k1..k4, as camera_info's "equidistant"
+    cam = Camera(K, D, model="equidistant")
+    pts_n = np.array([[0.1, -0.2], [0.9, 0.6], [-1.2, 0.3]])  # up to ~50 degrees off axis
+    px = cv2.fisheye.projectPoints(np.c_[pts_n, np.ones(3)][None], np.zeros(3), np.zeros(3), K, np.array(D))[0].reshape(-1, 2)
+    np.testing.assert_allclose(cam.normalize(px), pts_n, atol=1e-6)
+    plumb = Camera(K, D)  # the same numbers read as plumb_bob are another lens: the model is not ignored
+    assert np.abs(plumb.normalize(px) - pts_n).max() > 0.01
+
+
+@pytest.mark.parametrize("model, dist, msg", [
+    ("fov", [0.9], "distortion model 'fov' is not supported; use one of plumb_bob, rational_polynomial, equidistant"),
+    ("equidistant", [0.1, 0.0, 0.0, 0.0, 0.0], "equidistant (fisheye) distortion has 4 coefficients k1..k4, got 5"),
+])
+def test_unsupported_distortion_is_refused_by_name(model, dist, msg):
+    with pytest.raises(CameraError) as err:
+        Camera(K, dist, model=model)
+    assert msg in str(err.value)
+
+
+def test_a_four_coefficient_plumb_bob_is_padded_with_zeros_for_camera_info():
+    np.testing.assert_array_equal(Camera(K, [0.1, 0.2, 0.3, 0.4]).distortion_for_msg(), [0.1, 0.2, 0.3, 0.4, 0.0])
+    np.testing.assert_array_equal(Camera(K, [0.1, 0.2, 0.3, 0.4], model="equidistant").distortion_for_msg(),
+                                  [0.1, 0.2, 0.3, 0.4])
+
+
 @pytest.mark.parametrize("bad_k, msg", [
     (np.zeros((3, 3)), "focal"),
     (np.full((3, 3), np.nan), "NaN"),

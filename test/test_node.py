@@ -193,6 +193,10 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
         nan_k.k = [float("nan")] * 9
         peer.pub_info.publish(nan_k)
         assert wait_diag(peer, "warn_bad_camera_info", 2)
+        fov = kitti_info(seq)
+        fov.distortion_model = "fov"  # a lens model the node cannot undistort
+        peer.pub_info.publish(fov)
+        assert wait_diag(peer, "warn_bad_camera_info", 3)
         peer.pub_info.publish(info)
         spin_until(peer.node, lambda: False, 0.5)
 
@@ -243,6 +247,7 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
     out = node.output()
     assert "Traceback" not in out
     for needle in ("unsupported image encoding", "truncated", "0x0", "focal lengths", "NaN", "duplicate_stamp",
+                   "distortion model 'fov' is not supported; use one of plumb_bob, rational_polynomial, equidistant",
                    "out_of_order_stamp", "not moving", "frame size changed", "frames of 0.9 MB on a best-effort subscription",
                    "FASTDDS_DEFAULT_PROFILES_FILE="):
         assert needle in out, f"no clear warning containing {needle!r}:\n{out}"
