@@ -16,6 +16,7 @@ import numpy as np
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import get_types_from_msg
 
+from .caminfo import camera_from_info
 from .datasets import Sequence, quat_to_rot
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array
@@ -137,6 +138,7 @@ class Frame:
     error: str | None
     camera: Camera | None
     gt_pose: np.ndarray | None  # 4x4 T_WC, when the bag carries ground truth at this stamp
+    camera_error: str | None = None  # why the latest camera_info was refused, when it was
 
 
 @dataclass
@@ -323,16 +325,6 @@ def msg_time(msg) -> float:
     return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
-def camera_from_msg(msg) -> Camera:
-    """CameraInfo (ROS 1 or 2 field names) -> Camera; CameraError when K is unusable."""
-    K = getattr(msg, "k", None)
-    K = getattr(msg, "K", None) if K is None else K
-    D = getattr(msg, "d", None)
-    D = getattr(msg, "D", None) if D is None else D
-    return Camera(np.asarray(K, np.float64).reshape(3, 3), np.asarray(D, np.float64), int(msg.width), int(msg.height),
-                  getattr(msg, "distortion_model", ""))
-
-
 def pose_from_msg(msg) -> np.ndarray:
     """PoseStamped -> 4x4."""
     p, o = msg.pose.position, msg.pose.orientation
@@ -362,14 +354,14 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
     chosen = {"image": img_t, "camera_info": info_t, "ground_truth": gt_t}
 
     def gen() -> Iterator[Frame]:
-        camera, gt = None, {}
+        camera, camera_error, gt = None, None, {}
         pending: list[tuple[float, np.ndarray | None, str | None]] = []
         for m in reader.messages({t for t in (img_t, info_t, gt_t) if t}):
             if m.topic == info_t:
                 try:
-                    camera = camera_from_msg(m.msg)
-                except (CameraError, ValueError):
-                    pass
+                    camera, camera_error = camera_from_info(m.msg), None
+                except (CameraError, ValueError) as e:
+                    camera_error = str(e)  # the frames keep the last good calibration, if any, and say why not this one
             elif m.topic == gt_t:
                 gt[round(msg_time(m.msg), 6)] = pose_from_msg(m.msg)
             else:
@@ -381,8 +373,8 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
                 # camera_info and ground truth share the image stamp and may come just after it
                 while len(pending) > 1:
                     s, im, er = pending.pop(0)
-                    yield Frame(s, im, er, camera, gt.get(round(s, 6)))
+                    yield Frame(s, im, er, camera, gt.get(round(s, 6)), camera_error)
         for s, im, er in pending:
-            yield Frame(s, im, er, camera, gt.get(round(s, 6)))
+            yield Frame(s, im, er, camera, gt.get(round(s, 6)), camera_error)
 
     return gen(), chosen

@@ -31,6 +31,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 
+from .caminfo import camera_from_info, fit_camera
 from .dds import LARGE_FRAME_BYTES, follow_reliability, large_frames_advice, silence_advice
 from .debug_view import draw_matches
 from .detectors import DEFAULT_DETECTOR, DETECTORS
@@ -148,8 +149,10 @@ class NMNetNode(Node):
         torch.set_num_threads(p["threads"])
         cv2.setNumThreads(p["threads"])
         self.frontend = Frontend(None, frontend_config(p))
+        # the calibration as received (camera_info, else the fx..cy parameters); each frame gets it fitted to its size
+        self.camera: Camera | None = None
         if p["fx"] > 0 and p["fy"] > 0:
-            self.frontend.camera = Camera(np.array([[p["fx"], 0, p["cx"]], [0, p["fy"], p["cy"]], [0, 0, 1.0]]))
+            self.camera = Camera(np.array([[p["fx"], 0, p["cx"]], [0, p["fy"], p["cy"]], [0, 0, 1.0]]))
         self.stats = Stats()
         self._slot: object | None = None
         self._cv = threading.Condition()
@@ -180,7 +183,7 @@ class NMNetNode(Node):
         for w in self._workers:
             w.start()
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        if self.frontend.camera is None:
+        if self.camera is None:
             self.get_logger().info("waiting for camera_info (or set fx/fy/cx/cy parameters) before processing frames")
 
     def _on_set_parameters(self, params: list) -> SetParametersResult:
@@ -235,14 +238,13 @@ class NMNetNode(Node):
 
     def _on_info(self, msg: CameraInfo) -> None:
         try:
-            cam = Camera(np.array(msg.k, np.float64).reshape(3, 3), np.array(msg.d, np.float64), msg.width, msg.height,
-                         msg.distortion_model)
+            cam = camera_from_info(msg)
         except (CameraError, ValueError) as e:
             self._warn("bad_camera_info", f"ignoring camera_info: {e}")
             return
-        if self.frontend.camera is None:
-            self.get_logger().info(f"camera_info received: fx={cam.K[0, 0]:.1f} fy={cam.K[1, 1]:.1f} {msg.width}x{msg.height}")
-        self.frontend.camera = cam
+        if self.camera is None:
+            self.get_logger().info(f"camera_info received: fx={cam.K[0, 0]:.1f} fy={cam.K[1, 1]:.1f} {cam.width}x{cam.height}")
+        self.camera = cam
 
     def _on_image(self, msg) -> None:
         """Executor callback: O(1), puts the message in the latest-frame slot."""
@@ -302,7 +304,7 @@ class NMNetNode(Node):
 
     def _detect(self, msg) -> _Detected | None:
         t_recv = time.perf_counter()
-        if self.frontend.camera is None:
+        if self.camera is None:
             self._warn("no_camera_info", "no camera_info yet and no fx/fy/cx/cy parameters: frame skipped")
             return None
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
@@ -323,6 +325,12 @@ class NMNetNode(Node):
                                        "restarting from this frame")
         self._size = size
         self._last_stamp = stamp
+        cam, note = fit_camera(self.camera, size)
+        if note:
+            self._warn("camera_size_mismatch", note)
+        if cam is None:
+            return None
+        self.frontend.camera = cam
         feats = self.frontend.detect(img)
         timings = {"decode": 1000 * (t_dec - t), "detect": 1000 * (time.perf_counter() - t_dec)}
         return _Detected(msg.header, img, feats, stamp, timings, t_recv)

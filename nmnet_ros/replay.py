@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .bags import BagError, BagReader, read_frames
+from .caminfo import fit_camera
 from .datasets import read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
@@ -92,7 +93,7 @@ def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, g
     gt_tum = read_tum(gt_file) if gt_file else None
     fe = Frontend(None, config)
     run = Run(fe.config["selector"])
-    n_frames, prev_gt, overlay = 0, None, None
+    n_frames, prev_gt, overlay, last_note = 0, None, None, None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -108,9 +109,16 @@ def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, g
                 log(f"frame at {f.stamp:.3f}: skipped, {f.error}")
                 continue
             if f.camera is None:
-                log(f"frame at {f.stamp:.3f}: skipped, no camera_info yet")
+                log(f"frame at {f.stamp:.3f}: skipped, " + (f"camera_info refused: {f.camera_error}" if f.camera_error
+                                                            else "no camera_info yet"))
                 continue
-            fe.camera = f.camera
+            cam, note = fit_camera(f.camera, (f.image.shape[1], f.image.shape[0]))
+            if note and note != last_note:
+                log(f"frame at {f.stamp:.3f}: {note}")
+                last_note = note
+            if cam is None:
+                continue
+            fe.camera = cam
             T = f.gt_pose
             if gt_tum is not None:
                 T = gt_tum[1][int(np.argmin(np.abs(gt_tum[0] - f.stamp)))]

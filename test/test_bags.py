@@ -246,3 +246,60 @@ def test_the_lens_model_travels_through_a_bag(tmp_path, fmt, model, dist, writte
     frames = list(read_frames(BagReader(bag))[0])
     assert [f.camera.model for f in frames] == [model, model]
     np.testing.assert_allclose(frames[0].camera.dist, written)
+
+
+def rewrite_bag(src: Path, dst: Path, edit) -> None:
+    """Copy a ROS 2 bag, passing every message through ``edit(topic, msg) -> msg``."""
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+
+    ts = typestore()
+    with Reader(src) as r, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
+        for c, t, raw in r.messages():
+            msg = edit(c.topic, ts.deserialize_cdr(raw, c.msgtype))
+            w.write(conns[c.id], t, ts.serialize_cdr(msg, c.msgtype))
+
+
+@pytest.fixture(scope="module")
+def raw_bag(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rawbag") / "kitti"
+    assert make_bag(data_dir("kitti-07"), path, "mcap", compressed=False, frames=range(60, 66)) == 6
+    return path
+
+
+def test_a_refused_camera_info_is_named_for_every_frame_it_stops(raw_bag, tmp_path):
+    def fov(topic, msg):
+        if topic.endswith("camera_info"):
+            msg.distortion_model = "fov"
+        return msg
+
+    bag = tmp_path / "fov"
+    rewrite_bag(raw_bag, bag, fov)
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--no-progress")
+    out = r.stdout + r.stderr
+    assert "skipped, camera_info refused: distortion model 'fov' is not supported" in out, out
+    assert "no camera_info yet" not in out
+
+
+def test_frames_resized_from_their_calibration_get_k_scaled(raw_bag, tmp_path):
+    """A half-size stream with the full-size camera_info: K is scaled (and said so), and the poses stay right."""
+    import cv2
+
+    from nmnet_ros.imgconv import array_to_image_fields, image_to_array
+
+    def half(topic, msg):
+        if msg.__class__.__name__.endswith("Image"):
+            img = image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data)
+            f = array_to_image_fields(cv2.resize(img, (msg.width // 2, msg.height // 2), interpolation=cv2.INTER_AREA))
+            f["data"] = np.frombuffer(f["data"], np.uint8)
+            msg = type(msg)(header=msg.header, **f)
+        return msg
+
+    bag = tmp_path / "half"
+    rewrite_bag(raw_bag, bag, half)
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert "frames are 613x185 but camera_info describes 1226x370: K scaled by 0.5 to fit" in r.stdout + r.stderr
+    s = json.loads((tmp_path / "s.json").read_text())
+    # with the full-size K as is: translation 24 deg off, AUC@5 0 (measured); scaled: 0.3 deg, AUC@5 94
+    assert s["processed"] == 6 and s["median_trans_deg"] < 2.0 and s["auc5"] > 80, s

@@ -5,6 +5,7 @@ from __future__ import annotations
 import signal
 import time
 
+import cv2
 import numpy as np
 import pytest
 
@@ -240,6 +241,14 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
             peer.pub_img.publish(big)
             if spin_until(peer.node, lambda: "on a best-effort subscription" in node.output(), 0.2):
                 break
+        # a half-size stream with the full-size camera_info: K is scaled to fit, and said so
+        small = [cv2.resize(im, (613, 185), interpolation=cv2.INTER_AREA) for im in (img1, img2)]
+        for n in range(10):  # best effort right after the large frames may lose one: send until a pair is related
+            peer.pub_img.publish(image_msg(small[n % 2], 80.0 + n))
+            if peer.wait_result_for(80.0 + n, timeout=3.0):
+                break
+        else:
+            raise AssertionError("no result for half-size frames")
         assert node.alive()
     finally:
         peer.close()
@@ -249,7 +258,8 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
     for needle in ("unsupported image encoding", "truncated", "0x0", "focal lengths", "NaN", "duplicate_stamp",
                    "distortion model 'fov' is not supported; use one of plumb_bob, rational_polynomial, equidistant",
                    "out_of_order_stamp", "not moving", "frame size changed", "frames of 0.9 MB on a best-effort subscription",
-                   "FASTDDS_DEFAULT_PROFILES_FILE="):
+                   "FASTDDS_DEFAULT_PROFILES_FILE=", "600x370 but camera_info describes 1226x370, which is not the same image scaled",
+                   "613x185 but camera_info describes 1226x370: K scaled by 0.5 to fit"):
         assert needle in out, f"no clear warning containing {needle!r}:\n{out}"
 
 

@@ -1,0 +1,61 @@
+"""sensor_msgs/CameraInfo -> :class:`~nmnet_ros.geometry.Camera` for the frames it describes, without ROS imports.
+
+Works on ROS 1 and ROS 2 messages (``K``/``k``, ``D``/``d``), from rclpy or rosbags, so the node and
+the bag tools read calibration the same way. Binning and region of interest are read as
+image_geometry reads them: K and D describe the full-resolution sensor, and an image binned by
+(bx, by) and cut at (x0, y0) has fx / bx, (cx - x0) / bx, and so on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import Camera, CameraError
+
+
+def _field(msg, name: str):
+    """ROS 2 lower-case field, else the ROS 1 upper-case one."""
+    value = getattr(msg, name.lower(), None)
+    return getattr(msg, name.upper(), None) if value is None else value
+
+
+def camera_from_info(msg) -> Camera:
+    """The camera of the images a CameraInfo message belongs to; CameraError when K or D is unusable."""
+    K = np.asarray(_field(msg, "k"), np.float64)
+    if K.size != 9:
+        raise CameraError(f"camera_info K must have 9 values, got {K.size}")
+    K = K.reshape(3, 3).copy()
+    width, height = int(msg.width), int(msg.height)
+    bx, by = max(int(getattr(msg, "binning_x", 0)), 1), max(int(getattr(msg, "binning_y", 0)), 1)
+    roi = getattr(msg, "roi", None)
+    if roi is not None and (roi.width or roi.height or roi.x_offset or roi.y_offset):
+        K[0, 2] -= roi.x_offset
+        K[1, 2] -= roi.y_offset
+        width, height = int(roi.width) or width - int(roi.x_offset), int(roi.height) or height - int(roi.y_offset)
+    if bx > 1 or by > 1:
+        K[0] /= bx
+        K[1] /= by
+        width, height = width // bx, height // by
+    return Camera(K, np.asarray(_field(msg, "d"), np.float64), width, height, getattr(msg, "distortion_model", ""))
+
+
+def fit_camera(camera: Camera, size: tuple[int, int]) -> tuple[Camera | None, str | None]:
+    """The camera for frames of ``size`` (w, h), and a note when the calibration is for another size.
+
+    A frame that is the calibrated size scaled evenly (a resized stream with the full-size
+    camera_info) gets K scaled to fit, with a note; any other size (a crop, a wrong topic) cannot be
+    fitted: ``None`` and the reason. A camera without a size (parameters, old bags) fits every frame.
+    """
+    w, h = size
+    if camera.width <= 0 or camera.height <= 0 or (w, h) == (camera.width, camera.height):
+        return camera, None
+    sx, sy = w / camera.width, h / camera.height
+    seen = f"frames are {w}x{h} but camera_info describes {camera.width}x{camera.height}"
+    if abs(sx - sy) > 0.01 * max(sx, sy):
+        return None, (f"{seen}, which is not the same image scaled (a crop or another camera's calibration?): frame "
+                      "skipped; publish the camera_info that belongs to these frames (or set its roi)")
+    K = camera.K.copy()
+    K[0, 0], K[1, 1] = K[0, 0] * sx, K[1, 1] * sy
+    K[0, 2], K[1, 2] = (K[0, 2] + 0.5) * sx - 0.5, (K[1, 2] + 0.5) * sy - 0.5  # pixel centres scale, not corners
+    return (Camera(K, camera.dist, w, h, camera.model),
+            f"{seen}: K scaled by {sx:.4g} to fit; publish the camera_info that belongs to these frames")

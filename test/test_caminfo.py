@@ -1,0 +1,67 @@
+"""CameraInfo -> Camera: ROS 1 and ROS 2 fields, binning and ROI as image_geometry reads them, fitting to frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nmnet_ros.bags import typestore
+from nmnet_ros.caminfo import camera_from_info, fit_camera
+from nmnet_ros.geometry import Camera, CameraError
+
+K_FULL = np.array([[800.0, 0, 640.5], [0, 810.0, 360.25], [0, 0, 1]])
+D = np.array([-0.2, 0.05, 0.001, -0.0005, 0.0])
+
+
+def info(ros1: bool = False, binning: tuple[int, int] = (0, 0), roi: tuple[int, int, int, int] = (0, 0, 0, 0),
+         model: str = "plumb_bob"):
+    """A real (rosbags) CameraInfo of a 1280x720 sensor."""
+    ts = typestore(ros1)
+    names = ("D", "K", "R", "P") if ros1 else ("d", "k", "r", "p")
+    Roi = ts.types["sensor_msgs/msg/RegionOfInterest"]
+    header = ts.types["std_msgs/msg/Header"](stamp=ts.types["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="cam",
+                                             **({"seq": 0} if ros1 else {}))
+    return ts.types["sensor_msgs/msg/CameraInfo"](
+        header=header, height=720, width=1280, distortion_model=model,
+        **dict(zip(names, (D, K_FULL.ravel(), np.eye(3).ravel(), np.c_[K_FULL, np.zeros(3)].ravel()), strict=True)),
+        binning_x=binning[0], binning_y=binning[1],
+        roi=Roi(x_offset=roi[0], y_offset=roi[1], width=roi[2], height=roi[3], do_rectify=False))
+
+
+@pytest.mark.parametrize("ros1", [False, True])
+def test_full_frame_camera_info_in_both_ros_versions(ros1):
+    cam = camera_from_info(info(ros1))
+    np.testing.assert_array_equal(cam.K, K_FULL)
+    np.testing.assert_array_equal(cam.dist, D)
+    assert (cam.width, cam.height, cam.model) == (1280, 720, "plumb_bob")
+
+
+def test_binning_and_roi_give_the_same_rays_as_the_full_frame():
+    full = camera_from_info(info())
+    cam = camera_from_info(info(binning=(2, 2), roi=(100, 40, 800, 600)))
+    assert (cam.width, cam.height) == (400, 300)
+    px_full = np.array([[150.0, 60.0], [500.0, 400.0], [880.0, 620.0]])  # inside the ROI
+    px = (px_full - [100, 40]) / 2  # the same points in the binned ROI image
+    np.testing.assert_allclose(cam.normalize(px), full.normalize(px_full), atol=1e-9)
+
+
+def test_a_bad_camera_info_is_refused_with_the_reason():
+    msg = info()
+    msg.k = np.zeros(9)
+    with pytest.raises(CameraError, match="focal lengths must be positive"):
+        camera_from_info(msg)
+    with pytest.raises(CameraError, match="distortion model 'fov' is not supported"):
+        camera_from_info(info(model="fov"))
+
+
+def test_frames_are_fitted_to_their_calibration():
+    cam = Camera(K_FULL, D, 1280, 720)
+    assert fit_camera(cam, (1280, 720)) == (cam, None)
+    half, note = fit_camera(cam, (640, 360))
+    assert "frames are 640x360 but camera_info describes 1280x720: K scaled by 0.5 to fit" in note
+    px_full = np.array([[10.5, 20.5], [1000.0, 700.0]])
+    np.testing.assert_allclose(half.normalize((px_full + 0.5) * 0.5 - 0.5), cam.normalize(px_full), atol=1e-9)
+    crop, note = fit_camera(cam, (1280, 600))
+    assert crop is None and "not the same image scaled" in note and "frame skipped" in note
+    nosize = Camera(K_FULL)
+    assert fit_camera(nosize, (640, 480)) == (nosize, None)  # fx..cy parameters: no size to check against
