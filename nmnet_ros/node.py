@@ -37,7 +37,7 @@ from .debug_view import draw_matches
 from .detectors import DEFAULT_DETECTOR, DETECTORS
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
-from .pipeline import FrameResult, Frontend
+from .pipeline import RESTARTS, FrameResult, Frontend
 from .posemsg import relative_pose_of_current
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 
@@ -308,9 +308,15 @@ class NMNetNode(Node):
             self._warn("no_camera_info", "no camera_info yet and no fx/fy/cx/cy parameters: frame skipped")
             return None
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        if self._last_stamp is not None and stamp <= self._last_stamp:
+        jump = self.frontend.config["time_jump_s"]
+        if self._last_stamp is not None and stamp < self._last_stamp - jump:
+            self._warn("time_jump", f"frame stamp {stamp:.6f} is {self._last_stamp - stamp:.1f} s before the previous one "
+                                    "(a bag played in a loop, or the clock was reset): restarting from this frame")
+        elif self._last_stamp is not None and stamp <= self._last_stamp:
             kind = "duplicate_stamp" if stamp == self._last_stamp else "out_of_order_stamp"
-            self._warn(kind, f"frame stamp {stamp:.6f} is not after the previous {self._last_stamp:.6f} ({kind}): skipped")
+            unstamped = " (a stamp of 0: does the camera driver stamp its frames?)" if stamp == 0 else ""
+            self._warn(kind, f"frame stamp {stamp:.6f} is not after the previous {self._last_stamp:.6f} ({kind}): "
+                             f"skipped{unstamped}")
             return None
         t = time.perf_counter()
         try:
@@ -347,7 +353,7 @@ class NMNetNode(Node):
     def _publish(self, header, img: np.ndarray, r: FrameResult) -> None:
         s = self.stats
         s.last_status, s.last_matches, s.last_selected, s.last_keypoints = r.status, len(r.k0), r.num_selected, r.num_keypoints
-        if r.status in ("first_frame", "size_changed"):
+        if r.status in RESTARTS:
             return
         if r.status == "too_few_matches":
             self._warn("too_few_matches", f"only {r.num_selected} matches selected of {len(r.k0)} (need 8): no pose")

@@ -33,6 +33,7 @@ DEFAULT_CONFIG: dict = {
     "mutual": False,
     "min_matches": 8,
     "static_flow_px": 1.0,  # median flow of the selected matches below this = camera not moving
+    "time_jump_s": 1.0,  # a frame this much older than the previous one starts a new chain (bag loop, clock reset)
 }
 
 
@@ -49,12 +50,16 @@ def _selector(c: dict) -> Callable[[Correspondences], Selection]:
     return build(c["selector"], {key: c[key] for key in SELECTOR_CONFIG}, {"nmnet": c["weights"]} if c["weights"] else None)
 
 
+# statuses of a frame that starts a new chain: nothing to relate it to, no pose
+RESTARTS = ("first_frame", "size_changed", "time_jump")
+
+
 @dataclass
 class FrameResult:
     """What the front end has to say about one frame (relative to the previous one)."""
 
     stamp: float
-    status: str  # ok | first_frame | too_few_matches | no_motion | pose_failed | size_changed
+    status: str  # ok | too_few_matches | no_motion | pose_failed, or one of RESTARTS
     k0: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))  # previous frame, pixels
     k1: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))  # current frame, pixels
     scores: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
@@ -122,6 +127,8 @@ class Frontend:
             return FrameResult(stamp, "first_frame", timings_ms=timings, num_keypoints=len(feats))
         if prev[2] != size:
             return FrameResult(stamp, "size_changed", timings_ms=timings, num_keypoints=len(feats))
+        if stamp < prev[0] - self.config["time_jump_s"]:
+            return FrameResult(stamp, "time_jump", timings_ms=timings, num_keypoints=len(feats))
         c = self.config
         t = time.perf_counter()
         m = match_descriptors(prev[1].descriptors, feats.descriptors, {"ratio": c["ratio"], "mutual": c["mutual"]})

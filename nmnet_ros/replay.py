@@ -24,7 +24,7 @@ from .debug_view import draw_matches
 from .detectors import DETECTORS
 from .geometry import pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
-from .pipeline import FrameResult, Frontend
+from .pipeline import RESTARTS, FrameResult, Frontend
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
 FAILED = ("too_few_matches", "pose_failed")
@@ -41,7 +41,7 @@ def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
 
 def frame_error(r: FrameResult, T_prev: np.ndarray | None, T_cur: np.ndarray | None) -> tuple[float, float] | None:
     """(rot, trans) error of one result; failures count as 180; None when not scorable."""
-    if T_prev is None or T_cur is None or r.status in ("first_frame", "size_changed"):
+    if T_prev is None or T_cur is None or r.status in RESTARTS:
         return None
     R, t = relative_pose(T_prev, T_cur)
     moving = np.linalg.norm(t) > STATIC_GT_M
@@ -68,8 +68,8 @@ class Run:
     def summary(self, frames: int, dropped: int = 0) -> dict:
         e = np.array(self.errors) if self.errors else np.zeros((0, 2))
         aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
-        matches = [len(r.k0) for r in self.results if r.status != "first_frame"]
-        sel = [r.num_selected for r in self.results if r.status != "first_frame"]
+        matches = [len(r.k0) for r in self.results if r.status not in RESTARTS]
+        sel = [r.num_selected for r in self.results if r.status not in RESTARTS]
         statuses: dict[str, int] = {}
         for r in self.results:
             statuses[r.status] = statuses.get(r.status, 0) + 1
@@ -130,7 +130,7 @@ def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, g
                 run.err_stamps.append(f.stamp)
             run.gt.append(T)
             prev_gt = T
-            if r.status in ("first_frame", "size_changed"):
+            if r.status in RESTARTS:
                 continue
             want_overlay = overlay is None and r.status == "ok"
             dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if debug_images or want_overlay else None

@@ -124,6 +124,19 @@ def test_frontend_reconfigures_while_running(tmp_path):
     assert fe.process(img[1], 0.4).num_keypoints <= 500
 
 
+def test_a_frame_from_before_the_previous_one_starts_a_new_chain():
+    """A bag played in a loop (or a clock reset): its first frame again is not related to the loop's last one."""
+    from nmnet_ros.pipeline import Frontend
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    img = [seq.image(i) for i in (20, 21, 22)]
+    fe = Frontend(seq.camera, {"selector": "ratio+magsac"})
+    assert [fe.process(img[0], 10.0).status, fe.process(img[1], 10.1).status] == ["first_frame", "ok"]
+    assert fe.process(img[0], 10.1 - 1.5).status == "time_jump"  # 1.5 s back: more than time_jump_s
+    r = fe.process(img[1], 8.7)
+    assert r.status == "ok" and r.num_selected > 100  # the new chain relates its frames again
+
+
 def test_a_bad_weights_file_is_refused_by_every_method(tmp_path):
     """build() checks every weights file it is given, also one the method does not use: the caller
     learns now, not when it later switches to a method that loads it."""
