@@ -40,3 +40,26 @@ def silence_advice(subscribed_reliable: bool, publishers_reliable: list[bool]) -
     if not subscribed_reliable:
         return large_frames_advice() + "; or the camera stopped publishing"
     return "the camera may have stopped publishing"
+
+
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+
+
+def where_are_the_images(topics: list[tuple[str, list[str]]], ours: set[str], compressed: bool) -> str:
+    """For a node whose image topic has no publisher: the image topics that do exist, and the remap to use.
+
+    ``topics`` as ``Node.get_topic_names_and_types()`` gives them; ``ours``: the node's own image topics
+    (its subscription, its debug image), not listed; ``compressed``: it subscribes CompressedImage.
+    """
+    seen = [(name, t) for name, types in topics for t in types if t in IMAGE_TYPES and name not in ours]
+    if not seen:
+        return "no image topic is published at all: is the camera driver running, on this ROS_DOMAIN_ID?"
+    listing = ", ".join(f"{name} [{t.rsplit('/', 1)[-1]}]" for name, t in seen)
+    same = [name for name, t in seen if t == IMAGE_TYPES[compressed]]
+    if same:
+        hint = f"remap with -r {'image/compressed' if compressed else 'image'}:={same[0]}"
+    elif compressed:
+        hint = f"for raw frames set -p use_compressed:=false -r image:={seen[0][0]}"
+    else:
+        hint = f"for compressed frames set -p use_compressed:=true -r image/compressed:={seen[0][0]}"
+    return f"image topics seen: {listing}; {hint}"

@@ -32,7 +32,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 
 from .caminfo import camera_from_info, fit_camera
-from .dds import LARGE_FRAME_BYTES, follow_reliability, large_frames_advice, silence_advice
+from .dds import LARGE_FRAME_BYTES, follow_reliability, large_frames_advice, silence_advice, where_are_the_images
 from .debug_view import draw_matches
 from .detectors import DEFAULT_DETECTOR, DETECTORS
 from .geometry import Camera, CameraError
@@ -165,6 +165,7 @@ class NMNetNode(Node):
         self._image_sub = None
         self._subscribe_image(reliable=p["qos"] == "reliable")
         self._silent_s = 0  # seconds with image publishers but no frame
+        self._unpublished_s = 0  # seconds without any publisher on the image topic
         self._received_before = 0
         self._large_hint = False
         # camera_info is small: best effort matches publishers of either kind and loses nothing here
@@ -220,6 +221,11 @@ class NMNetNode(Node):
             self._subscribe_image(follow_reliability(offers))
             self.get_logger().info(f"image publishers on {topic}: {sum(offers)} of {len(offers)} reliable; subscribing "
                                    + ("reliable" if self.image_reliable else "best effort"))
+        self._unpublished_s = 0 if offers else self._unpublished_s + 1
+        if self._unpublished_s >= 10:
+            where = where_are_the_images(self.get_topic_names_and_types(), {topic, self.pub_debug.topic_name},
+                                         self._image_type is CompressedImage)
+            self._warn("no_publisher", f"no publisher on {topic} for {self._unpublished_s} s: {where}", period=60.0)
         self._silent_s = self._silent_s + 1 if offers and self.stats.received == self._received_before else 0
         self._received_before = self.stats.received
         if self._silent_s >= 5:

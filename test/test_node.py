@@ -347,8 +347,23 @@ def test_a_camera_the_node_cannot_match_is_explained(ros, tmp_path):
     assert "1 publisher(s) on /image but no frame for 5 s" in out and "do not match; use qos:=auto" in out, out
 
 
+def test_a_node_nobody_publishes_to_names_the_image_topics_there_are(ros, tmp_path):
+    """The usual set-up slip, no remap: after 10 s without a publisher the node lists the image topics and the remap."""
+    node = NodeProcess([], ros, tmp_path / "node.log")
+    peer = Peer(image_topic="/cam/image_raw", info_topic="/cam/camera_info")
+    try:
+        assert spin_until(peer.node, lambda: peer.count("warn_no_publisher") > 0, 40.0), "no warning without a publisher"
+        assert node.alive()
+    finally:
+        peer.close()
+        assert node.stop(signal.SIGTERM) == 0
+    out = node.output()
+    assert "no publisher on /image for 10 s: image topics seen: /cam/image_raw [Image]; remap with -r image:=/cam/image_raw" \
+        in out, out
+
+
 def test_the_subscription_follows_the_publishers_and_the_advice_fits_the_case():
-    from nmnet_ros.dds import LARGE_FRAMES_PROFILE, follow_reliability, silence_advice
+    from nmnet_ros.dds import LARGE_FRAMES_PROFILE, follow_reliability, silence_advice, where_are_the_images
 
     assert [follow_reliability(o) for o in ([], [True], [True, True], [True, False], [False])] == [False, True, True, False,
                                                                                                    False]
@@ -356,6 +371,14 @@ def test_the_subscription_follows_the_publishers_and_the_advice_fits_the_case():
     assert f"FASTDDS_DEFAULT_PROFILES_FILE={LARGE_FRAMES_PROFILE}" in silence_advice(False, [False])
     assert "stopped publishing" in silence_advice(True, [True])
     assert LARGE_FRAMES_PROFILE.is_file()
+    raw, jpeg = ("/cam/image_raw", ["sensor_msgs/msg/Image"]), ("/cam/image_raw/compressed", ["sensor_msgs/msg/CompressedImage"])
+    other = ("/imu", ["sensor_msgs/msg/Imu"])
+    assert "remap with -r image/compressed:=/cam/image_raw/compressed" in where_are_the_images([raw, jpeg], {"/image"}, True)
+    assert "set -p use_compressed:=true -r image/compressed:=/cam/image_raw/compressed" in where_are_the_images(
+        [jpeg, other], {"/image"}, False)
+    assert "set -p use_compressed:=false -r image:=/cam/image_raw" in where_are_the_images([raw], {"/image/compressed"}, True)
+    assert "no image topic is published at all" in where_are_the_images([other, ("/nmnet_node/debug_image", ["sensor_msgs/msg/Image"])],
+                                                              {"/image", "/nmnet_node/debug_image"}, False)
 
 
 def get_params(peer: Peer, names: list[str]) -> dict:
