@@ -16,7 +16,7 @@ import numpy as np
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import get_types_from_msg
 
-from .caminfo import camera_from_info
+from .caminfo import camera_from_info, info_fields
 from .datasets import Sequence, quat_to_rot
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array
@@ -65,15 +65,9 @@ def _messages_for_frame(ts, seq: Sequence, i: int, compressed: bool, ros1: bool)
         f = array_to_image_fields(img)
         f["data"] = np.frombuffer(f["data"], np.uint8)
         out.append((TOPICS["image"], "sensor_msgs/msg/Image", ts.types["sensor_msgs/msg/Image"](header=hdr, **f)))
-    cam = seq.camera
-    K = cam.K.ravel()
-    P = np.c_[cam.K, np.zeros(3)].ravel()
-    dist = cam.distortion_for_msg()
     Roi = ts.types["sensor_msgs/msg/RegionOfInterest"]
-    names = ("D", "K", "R", "P") if ros1 else ("d", "k", "r", "p")
     info = ts.types["sensor_msgs/msg/CameraInfo"](
-        header=hdr, height=img.shape[0], width=img.shape[1], distortion_model=cam.model,
-        **dict(zip(names, (dist, K, np.eye(3).ravel(), P), strict=True)),
+        header=hdr, **info_fields(seq.camera, img.shape[1], img.shape[0], ros1),
         binning_x=0, binning_y=0, roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
     out.append((TOPICS["info"], "sensor_msgs/msg/CameraInfo", info))
     if seq.poses is not None:

@@ -59,3 +59,13 @@ def fit_camera(camera: Camera, size: tuple[int, int]) -> tuple[Camera | None, st
     K[0, 2], K[1, 2] = (K[0, 2] + 0.5) * sx - 0.5, (K[1, 2] + 0.5) * sy - 0.5  # pixel centres scale, not corners
     return (Camera(K, camera.dist, w, h, camera.model),
             f"{seen}: K scaled by {sx:.4g} to fit; publish the camera_info that belongs to these frames")
+
+
+def info_fields(camera: Camera, width: int, height: int, ros1: bool = False) -> dict:
+    """The calibration fields of a CameraInfo for frames of ``width`` x ``height``: K, D, R = I, P = [K | 0].
+
+    Field names as ROS 2 (``k``, ``d``, ...) or ROS 1 (``K``, ``D``, ...) spell them; plumb_bob D padded to 5.
+    """
+    names = ("D", "K", "R", "P") if ros1 else ("d", "k", "r", "p")
+    values = (camera.distortion_for_msg(), camera.K.ravel(), np.eye(3).ravel(), np.c_[camera.K, np.zeros(3)].ravel())
+    return {"height": height, "width": width, "distortion_model": camera.model, **dict(zip(names, values, strict=True))}

@@ -18,9 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from .bags import BagError, BagReader, pick_topic, pose_from_msg, typestore
+from .caminfo import info_fields
 from .datasets import quat_to_rot
 from .dds import LARGE_FRAMES_PROFILE
-from .geometry import pose_auc, relative_pose, rotation_error_deg, translation_error_deg
+from .geometry import Camera, pose_auc, relative_pose, rotation_error_deg, translation_error_deg
 from .mcap_out import McapOutput
 
 NODE_NAME = "nmnet_node"
@@ -33,6 +34,16 @@ def _rclpy_type(msgtype: str):
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
+def _camera_info(camera: Camera, header):
+    """An rclpy CameraInfo of ``camera`` with the image's header."""
+    from sensor_msgs.msg import CameraInfo
+
+    msg = CameraInfo(header=header)
+    for key, value in info_fields(camera, camera.width, camera.height).items():
+        setattr(msg, key, value.tolist() if isinstance(value, np.ndarray) else value)
+    return msg
+
+
 def live_env() -> dict[str, str]:
     """The environment for player and node: an own domain on localhost unless the user set one."""
     env = dict(os.environ)
@@ -43,8 +54,12 @@ def live_env() -> dict[str, str]:
     return env
 
 
-def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log=print) -> dict:
-    """Play, record, stop the node; returns counts and latencies."""
+def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log=print,
+              camera: Camera | None = None) -> dict:
+    """Play, record, stop the node; returns counts and latencies.
+
+    ``camera``: published as camera_info with every image instead of the bag's camera_info.
+    """
     import rclpy
     from rclpy.qos import QoSProfile, qos_profile_sensor_data
     from rclpy.serialization import deserialize_message, serialize_message
@@ -53,7 +68,7 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
     if reader.kind == "bag":
         raise BagError(f"{bag}: live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags offline (without --live)")
     img_t = pick_topic(reader.topics, ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage"), "image", None)
-    info_t = pick_topic(reader.topics, ("sensor_msgs/msg/CameraInfo",), "info", None)
+    info_t = None if camera else pick_topic(reader.topics, ("sensor_msgs/msg/CameraInfo",), "info", None)
     if img_t is None:
         raise BagError(f"{bag}: no image topic; the bag has: {', '.join(sorted(reader.topics))}")
     compressed = reader.topics[img_t].endswith("CompressedImage")
@@ -111,6 +126,8 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
                 rclpy.spin_once(player, timeout_sec=min(wait, 0.02))
             msg = deserialize_message(bytes(ts.serialize_cdr(m.msg, m.msgtype)), _rclpy_type(m.msgtype))
             if m.topic == img_t:
+                if camera:
+                    pub_info.publish(_camera_info(camera, msg.header))
                 sent_at[msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec] = time.monotonic()
                 pub_img.publish(msg)
                 stats["published"] += 1

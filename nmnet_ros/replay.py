@@ -19,10 +19,10 @@ import numpy as np
 
 from .bags import BagError, BagReader, read_frames
 from .caminfo import fit_camera
-from .datasets import read_tum
+from .datasets import read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
-from .geometry import pose_auc, pose_error_deg, relative_pose
+from .geometry import Camera, pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
 from .pipeline import RESTARTS, FrameResult, Frontend
 
@@ -86,8 +86,11 @@ class Run:
 
 def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, gt_file: Path | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
-                log=print) -> tuple[Run, int, list[np.ndarray | None]]:
-    """One pass of the front end over a bag; returns the run, the frame count and the last good image."""
+                log=print, camera: Camera | None = None) -> tuple[Run, int, list[np.ndarray | None]]:
+    """One pass of the front end over a bag; returns the run, the frame count and the last good image.
+
+    ``camera``: the calibration to use instead of the bag's camera_info.
+    """
     reader = BagReader(bag)
     frames, chosen = read_frames(reader, **(topics or {}))
     gt_tum = read_tum(gt_file) if gt_file else None
@@ -108,11 +111,12 @@ def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, g
             if f.image is None:
                 log(f"frame at {f.stamp:.3f}: skipped, {f.error}")
                 continue
-            if f.camera is None:
+            calibration = camera or f.camera
+            if calibration is None:
                 log(f"frame at {f.stamp:.3f}: skipped, " + (f"camera_info refused: {f.camera_error}" if f.camera_error
-                                                            else "no camera_info yet"))
+                                                            else "no camera_info yet (give the calibration with --camera)"))
                 continue
-            cam, note = fit_camera(f.camera, (f.image.shape[1], f.image.shape[0]))
+            cam, note = fit_camera(calibration, (f.image.shape[1], f.image.shape[0]))
             if note and note != last_note:
                 log(f"frame at {f.stamp:.3f}: {note}")
                 last_note = note
@@ -242,6 +246,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image-topic", default=None)
     p.add_argument("--info-topic", default=None)
     p.add_argument("--gt-topic", default=None)
+    p.add_argument("--camera", type=Path, default=None, help="calibration as a ROS camera_info YAML (what camera_calibration "
+                   "writes), for a bag without camera_info or to use instead of it")
     p.add_argument("--selector", default="nmnet+ratio+magsac", help="correspondence selector (see nmnet eval)")
     p.add_argument("--detector", default="hessian-affine-fast", choices=sorted(DETECTORS), help="local feature frames")
     p.add_argument("--max-keypoints", type=int, default=2000)
@@ -259,17 +265,19 @@ def main(args: argparse.Namespace) -> int:
     out = McapOutput(args.out)  # fails before any processing when not writable
     plots_dir = args.plots or args.out.parent
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
+    camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
     if args.live:
-        return main_live(args, out)
+        return main_live(args, out, camera)
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
         cfg = {"selector": args.selector, "max_keypoints": args.max_keypoints, "detector": args.detector}
-        run, n, overlay = process_bag(args.bag, out, cfg, args.gt, args.debug_images, not args.no_progress, topics)
+        run, n, overlay = process_bag(args.bag, out, cfg, args.gt, args.debug_images, not args.no_progress, topics,
+                                      camera=camera)
         runs.append(run)
         if args.baseline:
             base, _, _ = process_bag(args.bag, None, {**BASELINE, "max_keypoints": args.max_keypoints}, args.gt,
-                                     progress=not args.no_progress, topics=topics)
+                                     progress=not args.no_progress, topics=topics, camera=camera)
             base.name = "SIFT+ratio+MAGSAC++"
             runs.append(base)
     except (KeyboardInterrupt, _Terminated):
@@ -307,14 +315,15 @@ def summary_json(summary: dict) -> str:
     return json.dumps(clean(summary), indent=1, allow_nan=False)
 
 
-def main_live(args: argparse.Namespace, out: McapOutput) -> int:
+def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
     from .live import play_live, score_recording
 
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
     try:
-        stats = play_live(args.bag, out, args.rate, ["-p", f"max_keypoints:={args.max_keypoints}", "-p", f"detector:={args.detector}"])
+        stats = play_live(args.bag, out, args.rate, ["-p", f"max_keypoints:={args.max_keypoints}", "-p", f"detector:={args.detector}"],
+                          camera=camera)
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130

@@ -249,7 +249,7 @@ def test_the_lens_model_travels_through_a_bag(tmp_path, fmt, model, dist, writte
 
 
 def rewrite_bag(src: Path, dst: Path, edit) -> None:
-    """Copy a ROS 2 bag, passing every message through ``edit(topic, msg) -> msg``."""
+    """Copy a ROS 2 bag, passing every message through ``edit(topic, msg) -> msg`` (None: leave it out)."""
     from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
     ts = typestore()
@@ -257,7 +257,8 @@ def rewrite_bag(src: Path, dst: Path, edit) -> None:
         conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
         for c, t, raw in r.messages():
             msg = edit(c.topic, ts.deserialize_cdr(raw, c.msgtype))
-            w.write(conns[c.id], t, ts.serialize_cdr(msg, c.msgtype))
+            if msg is not None:
+                w.write(conns[c.id], t, ts.serialize_cdr(msg, c.msgtype))
 
 
 @pytest.fixture(scope="module")
@@ -303,3 +304,22 @@ def test_frames_resized_from_their_calibration_get_k_scaled(raw_bag, tmp_path):
     s = json.loads((tmp_path / "s.json").read_text())
     # with the full-size K as is: translation 24 deg off, AUC@5 0 (measured); scaled: 0.3 deg, AUC@5 94
     assert s["processed"] == 6 and s["median_trans_deg"] < 2.0 and s["auc5"] > 80, s
+
+
+def test_a_bag_without_camera_info_replays_with_a_calibration_file(raw_bag, tmp_path):
+    bag = tmp_path / "nocal"
+    rewrite_bag(raw_bag, bag, lambda topic, msg: None if topic.endswith("camera_info") else msg)
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "a.mcap"), "--no-progress")
+    assert "skipped, no camera_info yet (give the calibration with --camera)" in r.stdout + r.stderr
+    yaml_file = data_dir("kitti-07") / "camera.yaml"
+    for mode in ([], ["--live", "--rate", "0.5"]):
+        name = "live" if mode else "offline"
+        r = nmnet("replay", str(bag), "--camera", str(yaml_file), "--out", str(tmp_path / f"{name}.mcap"),
+                  "--json", str(tmp_path / f"{name}.json"), "--no-progress", *mode)
+        assert r.returncode == 0, r.stderr
+        s = json.loads((tmp_path / f"{name}.json").read_text())
+        assert s["processed"] == 6 and s["auc5"] > 80, (name, s)
+    bad = tmp_path / "camera.yaml"
+    bad.write_text("camera_matrix: {data: [0, 0, 0, 0, 0, 0, 0, 0, 1]}\n")
+    r = nmnet("replay", str(bag), "--camera", str(bad), "--out", str(tmp_path / "b.mcap"))
+    assert r.returncode == 2 and f"{bad}: camera focal lengths must be positive" in r.stderr, r.stderr
