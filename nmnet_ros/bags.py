@@ -336,8 +336,11 @@ def decode_image_msg(msg, msgtype: str) -> np.ndarray:
 
 
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
-                gt_topic: str | None = None) -> tuple[Iterator[Frame], dict[str, str | None]]:
-    """Frames of a bag with auto-detected topics; errors name the topics the bag has."""
+                gt_topic: str | None = None, rectified: bool = False) -> tuple[Iterator[Frame], dict[str, str | None]]:
+    """Frames of a bag with auto-detected topics; errors name the topics the bag has.
+
+    ``rectified``: the images are rectified, so their camera is camera_info's P (see caminfo).
+    """
     topics = reader.topics
     img_t = pick_topic(topics, IMAGE_TYPES, "image", image_topic)
     if img_t is None:
@@ -353,7 +356,7 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
         for m in reader.messages({t for t in (img_t, info_t, gt_t) if t}):
             if m.topic == info_t:
                 try:
-                    camera, camera_error = camera_from_info(m.msg), None
+                    camera, camera_error = camera_from_info(m.msg, rectified), None
                 except (CameraError, ValueError) as e:
                     camera_error = str(e)  # the frames keep the last good calibration, if any, and say why not this one
             elif m.topic == gt_t:

@@ -19,12 +19,24 @@ def _field(msg, name: str):
     return getattr(msg, name.upper(), None) if value is None else value
 
 
-def camera_from_info(msg) -> Camera:
-    """The camera of the images a CameraInfo message belongs to; CameraError when K or D is unusable."""
-    K = np.asarray(_field(msg, "k"), np.float64)
-    if K.size != 9:
-        raise CameraError(f"camera_info K must have 9 values, got {K.size}")
-    K = K.reshape(3, 3).copy()
+def camera_from_info(msg, rectified: bool = False) -> Camera:
+    """The camera of the images a CameraInfo message belongs to; CameraError when K or D is unusable.
+
+    ``rectified``: the images are image_proc's rectified ones (``image_rect``), whose camera is P's left
+    3x3 with no distortion; K and D describe the raw images.
+    """
+    if rectified:
+        P = np.asarray(_field(msg, "p"), np.float64)
+        if P.size != 12:
+            raise CameraError(f"camera_info P must have 12 values, got {P.size}")
+        K = P.reshape(3, 4)[:, :3].copy()
+        if not K.any():
+            raise CameraError("camera_info P is all zero, so rectified frames have no camera (is the camera calibrated?)")
+    else:
+        K = np.asarray(_field(msg, "k"), np.float64)
+        if K.size != 9:
+            raise CameraError(f"camera_info K must have 9 values, got {K.size}")
+        K = K.reshape(3, 3).copy()
     width, height = int(msg.width), int(msg.height)
     bx, by = max(int(getattr(msg, "binning_x", 0)), 1), max(int(getattr(msg, "binning_y", 0)), 1)
     roi = getattr(msg, "roi", None)
@@ -36,6 +48,8 @@ def camera_from_info(msg) -> Camera:
         K[0] /= bx
         K[1] /= by
         width, height = width // bx, height // by
+    if rectified:
+        return Camera(K, np.zeros(5), width, height)
     return Camera(K, np.asarray(_field(msg, "d"), np.float64), width, height, getattr(msg, "distortion_model", ""))
 
 

@@ -62,6 +62,8 @@ PARAMS: dict[str, tuple] = {
     "qos": ("auto", "input QoS: auto (images reliable when every image publisher offers it, else best effort, "
                     "re-checked every second), sensor_data (best effort, depth 5) or reliable (depth 10)",
             ("auto", "sensor_data", "reliable")),
+    "rectified": (False, "the image topic carries rectified frames (image_proc's image_rect): the camera is camera_info's "
+                         "P, without distortion (K and D describe the raw frames)", None),
     "use_compressed": (False, "subscribe image/compressed (sensor_msgs/CompressedImage) instead of image", None),
     "threads": (1, "CPU threads per pipeline stage (torch and OpenCV); detection and the rest run in parallel, "
                    "so 1 fills 2 cores", (1, 64)),
@@ -168,6 +170,7 @@ class NMNetNode(Node):
         self._unpublished_s = 0  # seconds without any publisher on the image topic
         self._received_before = 0
         self._large_hint = False
+        self._rect_hint = False
         # camera_info is small: best effort matches publishers of either kind and loses nothing here
         self.create_subscription(CameraInfo, "camera_info", self._on_info,
                                  QoSProfile(depth=10) if p["qos"] == "reliable" else qos_profile_sensor_data)
@@ -244,10 +247,15 @@ class NMNetNode(Node):
 
     def _on_info(self, msg: CameraInfo) -> None:
         try:
-            cam = camera_from_info(msg)
+            cam = camera_from_info(msg, self.params["rectified"])
         except (CameraError, ValueError) as e:
             self._warn("bad_camera_info", f"ignoring camera_info: {e}")
             return
+        topic = self._image_sub.topic_name
+        if not self.params["rectified"] and re.search(r"(^|/|_)rect", topic) and np.any(cam.dist) and not self._rect_hint:
+            self._rect_hint = True
+            self.get_logger().warning(f"{topic} looks rectified but camera_info has lens distortion, which would be "
+                                      "removed twice: set rectified:=true if these frames are rectified")
         if self.camera is None:
             self.get_logger().info(f"camera_info received: fx={cam.K[0, 0]:.1f} fy={cam.K[1, 1]:.1f} {cam.width}x{cam.height}")
         self.camera = cam

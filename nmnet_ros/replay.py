@@ -246,6 +246,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image-topic", default=None)
     p.add_argument("--info-topic", default=None)
     p.add_argument("--gt-topic", default=None)
+    p.add_argument("--rectified", action="store_true", help="the bag's images are rectified (image_rect): use camera_info's "
+                   "P, without distortion")
     p.add_argument("--camera", type=Path, default=None, help="calibration as a ROS camera_info YAML (what camera_calibration "
                    "writes), for a bag without camera_info or to use instead of it")
     p.add_argument("--selector", default="nmnet+ratio+magsac", help="correspondence selector (see nmnet eval)")
@@ -264,7 +266,8 @@ def main(args: argparse.Namespace) -> int:
         raise BagError(f"{args.bag}: no such bag")
     out = McapOutput(args.out)  # fails before any processing when not writable
     plots_dir = args.plots or args.out.parent
-    topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
+    topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic,
+              "rectified": args.rectified}
     camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
     if args.live:
         return main_live(args, out, camera)
@@ -322,8 +325,8 @@ def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None =
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
     try:
-        stats = play_live(args.bag, out, args.rate, ["-p", f"max_keypoints:={args.max_keypoints}", "-p", f"detector:={args.detector}"],
-                          camera=camera)
+        stats = play_live(args.bag, out, args.rate, ["-p", f"max_keypoints:={args.max_keypoints}", "-p", f"detector:={args.detector}",
+                                                     "-p", f"rectified:={str(args.rectified).lower()}"], camera=camera)
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130

@@ -99,13 +99,14 @@ def compressed_msg(img: np.ndarray, stamp: float, data: bytes | None = None):
 
 
 def camera_info_msg(K: np.ndarray, dist: np.ndarray, width: int, height: int):
-    """sensor_msgs/CameraInfo (plumb_bob)."""
+    """sensor_msgs/CameraInfo (plumb_bob; P = [K | 0], as for a monocular camera)."""
     from sensor_msgs.msg import CameraInfo
 
+    from nmnet_ros.caminfo import info_fields
+    from nmnet_ros.geometry import Camera
+
     msg = CameraInfo()
-    msg.width, msg.height = width, height
-    msg.distortion_model = "plumb_bob"
-    msg.d = [float(x) for x in np.resize(dist, 5)]
-    msg.k = [float(x) for x in np.asarray(K).ravel()]
+    for key, value in info_fields(Camera(K, dist, width, height), width, height).items():
+        setattr(msg, key, [float(x) for x in value] if isinstance(value, np.ndarray) else value)
     msg.header.frame_id = "camera"
     return msg

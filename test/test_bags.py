@@ -323,3 +323,23 @@ def test_a_bag_without_camera_info_replays_with_a_calibration_file(raw_bag, tmp_
     bad.write_text("camera_matrix: {data: [0, 0, 0, 0, 0, 0, 0, 0, 1]}\n")
     r = nmnet("replay", str(bag), "--camera", str(bad), "--out", str(tmp_path / "b.mcap"))
     assert r.returncode == 2 and f"{bad}: camera focal lengths must be positive" in r.stderr, r.stderr
+
+
+def test_a_bag_of_rectified_frames_replays_with_the_projection_matrix(raw_bag, tmp_path):
+    """--rectified: the camera is camera_info's P; its K and D (here a raw, distorted camera's) are not applied again."""
+    def raw_calibration(topic, msg):
+        if topic.endswith("camera_info"):
+            msg.k = msg.k * np.array([0.9, 1, 0.9, 1, 0.9, 0.9, 1, 1, 1])  # fx, cx, fy, cy of another (raw) camera
+            msg.d = np.array([-0.3, 0.1, 0.0, 0.0, 0.0])
+        return msg
+
+    bag = tmp_path / "rect"
+    rewrite_bag(raw_bag, bag, raw_calibration)
+    res = {}
+    for flag in ([], ["--rectified"]):
+        r = nmnet("replay", str(bag), "--out", str(tmp_path / f"o{len(flag)}.mcap"), "--json", str(tmp_path / "s.json"),
+                  "--no-progress", *flag)
+        assert r.returncode == 0, r.stderr
+        res[bool(flag)] = json.loads((tmp_path / "s.json").read_text())
+    print(res)
+    assert res[True]["auc5"] > 80 > res[False]["auc5"]  # measured: 10 without the flag (translation 5 deg off)

@@ -65,3 +65,16 @@ def test_frames_are_fitted_to_their_calibration():
     assert crop is None and "not the same image scaled" in note and "frame skipped" in note
     nosize = Camera(K_FULL)
     assert fit_camera(nosize, (640, 480)) == (nosize, None)  # fx..cy parameters: no size to check against
+
+
+def test_rectified_frames_take_the_projection_matrix_without_distortion():
+    msg = info()
+    P = K_FULL.copy()
+    P[0, 0] = P[1, 1] = 700.0  # rectification picks its own focal length
+    msg.p = np.c_[P, np.zeros(3)].ravel()
+    cam = camera_from_info(msg, rectified=True)
+    np.testing.assert_array_equal(cam.K, P)
+    assert not cam.dist.any() and (cam.width, cam.height) == (1280, 720)
+    msg.p = np.zeros(12)
+    with pytest.raises(CameraError, match="P is all zero"):
+        camera_from_info(msg, rectified=True)
