@@ -34,11 +34,11 @@ def _rclpy_type(msgtype: str):
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
-def _camera_info(camera: Camera, header):
-    """An rclpy CameraInfo of ``camera`` with the image's header."""
+def _camera_info(camera: Camera, header=None):
+    """An rclpy CameraInfo of ``camera`` with the image's header (none: an empty one)."""
     from sensor_msgs.msg import CameraInfo
 
-    msg = CameraInfo(header=header)
+    msg = CameraInfo() if header is None else CameraInfo(header=header)
     for key, value in info_fields(camera, camera.width, camera.height).items():
         setattr(msg, key, value.tolist() if isinstance(value, np.ndarray) else value)
     return msg
@@ -112,7 +112,11 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
         t0 = time.monotonic() + 1.0  # first messages after discovery can be lost
         while time.monotonic() < t0:
             rclpy.spin_once(player, timeout_sec=0.05)
-        if info_t:  # calibration first, so the first frame is usable (bags often log it just after the image)
+        # calibration first, so the first frame is usable (bags often log it just after the image)
+        if camera:
+            pub_info.publish(_camera_info(camera, None))
+            rclpy.spin_once(player, timeout_sec=0.2)
+        elif info_t:
             first_info = next(iter(reader.messages({info_t})), None)
             if first_info is not None:
                 pub_info.publish(deserialize_message(bytes(ts.serialize_cdr(first_info.msg, first_info.msgtype)),
