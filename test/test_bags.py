@@ -199,7 +199,8 @@ def test_live_replay_agrees_with_offline(tmp_path):
 def test_live_replay_delivers_raw_frames_over_half_a_megabyte(tmp_path):
     """Raw 768x512 bgr8 frames (1.2 MB) reach the node: the player runs with the shipped large-frames profile.
 
-    Without it, best effort over Fast DDS's default shared memory delivered 0-3 of 20 such frames (nmnet_ros/dds.py).
+    Without it, best effort over Fast DDS's default shared memory delivered 0-7 of 20 such frames (nmnet_ros/dds.py), and
+    0 of these 6 in a hand run.
     """
     bag = tmp_path / "fountain_raw"
     assert make_bag(data_dir("strecha-fountain-p11"), bag, "mcap", compressed=False, frames=range(6)) == 6
