@@ -19,12 +19,11 @@ from rosbags.typesys.msg import get_types_from_msg
 from .caminfo import camera_from_info, info_fields
 from .datasets import Sequence, quat_to_rot
 from .geometry import Camera, CameraError
-from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array
+from .imgconv import IMAGE_TYPES, ImageError, array_to_image_fields, decode_compressed, image_to_array
 from .posemsg import rot_to_quat
 
 TOPICS = {"image": "/camera/image_raw", "compressed": "/camera/image_raw/compressed", "info": "/camera/camera_info",
           "gt": "/ground_truth/pose", "tf": "/tf"}
-IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 FORMATS = ("mcap", "sqlite3", "ros1")
 
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .imgconv import IMAGE_TYPES
+
 LARGE_FRAMES_PROFILE = Path(__file__).with_name("fastdds_large_frames.xml")
 LARGE_FRAME_BYTES = 512 * 1024  # above this, best effort over Fast DDS's default shared memory loses frames
 
@@ -40,9 +42,6 @@ def silence_advice(subscribed_reliable: bool, publishers_reliable: list[bool]) -
     if not subscribed_reliable:
         return large_frames_advice() + "; or the camera stopped publishing"
     return "the camera may have stopped publishing"
-
-
-IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 
 
 def where_are_the_images(topics: list[tuple[str, list[str]]], ours: set[str], compressed: bool) -> str:

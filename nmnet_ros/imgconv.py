@@ -10,6 +10,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")  # the messages frames come in
+
 # encoding -> (channels, dtype, conversion to the pipeline's BGR/mono); names as sensor_msgs/image_encodings.h
 ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
     "mono8": (1, np.dtype(np.uint8), None),

@@ -22,6 +22,7 @@ from .caminfo import info_fields
 from .datasets import quat_to_rot
 from .dds import LARGE_FRAMES_PROFILE
 from .geometry import Camera, pose_auc, relative_pose, rotation_error_deg, translation_error_deg
+from .imgconv import IMAGE_TYPES
 from .mcap_out import McapOutput
 
 NODE_NAME = "nmnet_node"
@@ -67,7 +68,7 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
     reader = BagReader(bag)
     if reader.kind == "bag":
         raise BagError(f"{bag}: live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags offline (without --live)")
-    img_t = pick_topic(reader.topics, ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage"), "image", None)
+    img_t = pick_topic(reader.topics, IMAGE_TYPES, "image", None)
     info_t = None if camera else pick_topic(reader.topics, ("sensor_msgs/msg/CameraInfo",), "info", None)
     if img_t is None:
         raise BagError(f"{bag}: no image topic; the bag has: {', '.join(sorted(reader.topics))}")
