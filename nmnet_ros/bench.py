@@ -139,7 +139,6 @@ def bench_pipeline(frames: list[np.ndarray], camera, sizes: tuple[int, ...] = (1
 
     from .fast_hessaff import FastHessianAffine
     from .features import HessianAffine, SiftSimilarity
-    from .geometry import Camera
     from .matching import match_descriptors
     from .model import load_model
     from .model_fast import FastNMNet
@@ -156,10 +155,7 @@ def bench_pipeline(frames: list[np.ndarray], camera, sizes: tuple[int, ...] = (1
         imgs = [cv2.resize(f, shape, interpolation=cv2.INTER_AREA) if shape else f for f in frames]
         jpegs = [cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes() for f in imgs]
         h, w = imgs[0].shape[:2]
-        K = camera.K.copy()
-        K[0] *= w / frames[0].shape[1]
-        K[1] *= h / frames[0].shape[0]
-        cam = Camera(K, camera.dist, w, h, camera.model)
+        cam = camera.resized(w, h, (frames[0].shape[1], frames[0].shape[0]))
         for n in sizes:
             st, feats = _stages(FastHessianAffine({"max_keypoints": n}), model, magsac, cam, imgs, jpegs)
             row: dict = {k: {"median": float(np.median(v)), "p90": float(np.percentile(v, 90))} for k, v in st.items()}

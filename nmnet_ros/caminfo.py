@@ -68,11 +68,7 @@ def fit_camera(camera: Camera, size: tuple[int, int]) -> tuple[Camera | None, st
     if abs(sx - sy) > 0.01 * max(sx, sy):
         return None, (f"{seen}, which is not the same image scaled (a crop or another camera's calibration?): frame "
                       "skipped; publish the camera_info that belongs to these frames (or set its roi)")
-    K = camera.K.copy()
-    K[0, 0], K[1, 1] = K[0, 0] * sx, K[1, 1] * sy
-    K[0, 2], K[1, 2] = (K[0, 2] + 0.5) * sx - 0.5, (K[1, 2] + 0.5) * sy - 0.5  # pixel centres scale, not corners
-    return (Camera(K, camera.dist, w, h, camera.model),
-            f"{seen}: K scaled by {sx:.4g} to fit; publish the camera_info that belongs to these frames")
+    return camera.resized(w, h), f"{seen}: K scaled by {sx:.4g} to fit; publish the camera_info that belongs to these frames"
 
 
 def info_fields(camera: Camera, width: int, height: int, ros1: bool = False) -> dict:

@@ -66,6 +66,23 @@ class Camera:
             return cv2.fisheye.undistortPoints(pts[:, None], self.K, self.dist).reshape(-1, 2)
         return cv2.undistortPoints(pts[:, None], self.K, self.dist).reshape(-1, 2)
 
+    def resized(self, width: int, height: int, original: tuple[int, int] | None = None) -> Camera:
+        """The camera of these frames resized to ``width`` x ``height`` (from ``original``, else its own size).
+
+        Pixel centres scale, not corners: u' + 0.5 = (u + 0.5) * s. Distortion is in normalised
+        coordinates, so it stays.
+        """
+        w0, h0 = original or (self.width, self.height)
+        if w0 <= 0 or h0 <= 0:
+            raise CameraError("the camera has no image size to resize from")
+        sx, sy = width / w0, height / h0
+        K = self.K.copy()
+        K[0] *= sx
+        K[1] *= sy
+        K[0, 2] += 0.5 * (sx - 1)
+        K[1, 2] += 0.5 * (sy - 1)
+        return Camera(K, self.dist, width, height, self.model)
+
     def distortion_for_msg(self) -> np.ndarray:
         """The D of a camera_info message: plumb_bob padded with zeros to its 5 coefficients."""
         if self.model == "plumb_bob" and self.dist.size < 5:

@@ -78,3 +78,13 @@ def test_rectified_frames_take_the_projection_matrix_without_distortion():
     msg.p = np.zeros(12)
     with pytest.raises(CameraError, match="P is all zero"):
         camera_from_info(msg, rectified=True)
+
+
+def test_a_resized_camera_sees_the_same_rays_and_needs_a_size_to_start_from():
+    cam = Camera(K_FULL, D, 1280, 720)
+    small = cam.resized(640, 480)  # uneven, as the bench's 640x480 runs of other cameras
+    px = np.array([[10.5, 20.5], [1000.0, 700.0]])
+    np.testing.assert_allclose(small.normalize((px + 0.5) * [0.5, 480 / 720] - 0.5), cam.normalize(px), atol=1e-9)
+    np.testing.assert_allclose(Camera(K_FULL).resized(640, 360, (1280, 720)).K, cam.resized(640, 360).K)
+    with pytest.raises(CameraError, match="no image size to resize from"):
+        Camera(K_FULL).resized(640, 480)
