@@ -35,7 +35,7 @@ def _rclpy_type(msgtype: str):
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
-def _camera_info(camera: Camera, header=None):
+def camera_info_msg(camera: Camera, header=None):
     """An rclpy CameraInfo of ``camera`` with the image's header (none: an empty one)."""
     from sensor_msgs.msg import CameraInfo
 
@@ -115,7 +115,7 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
             rclpy.spin_once(player, timeout_sec=0.05)
         # calibration first, so the first frame is usable (bags often log it just after the image)
         if camera:
-            pub_info.publish(_camera_info(camera, None))
+            pub_info.publish(camera_info_msg(camera))
             rclpy.spin_once(player, timeout_sec=0.2)
         elif info_t:
             first_info = next(iter(reader.messages({info_t})), None)
@@ -132,7 +132,7 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
             msg = deserialize_message(bytes(ts.serialize_cdr(m.msg, m.msgtype)), _rclpy_type(m.msgtype))
             if m.topic == img_t:
                 if camera:
-                    pub_info.publish(_camera_info(camera, msg.header))
+                    pub_info.publish(camera_info_msg(camera, msg.header))
                 sent_at[msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec] = time.monotonic()
                 pub_img.publish(msg)
                 stats["published"] += 1

@@ -99,14 +99,10 @@ def compressed_msg(img: np.ndarray, stamp: float, data: bytes | None = None):
 
 
 def camera_info_msg(K: np.ndarray, dist: np.ndarray, width: int, height: int):
-    """sensor_msgs/CameraInfo (plumb_bob; P = [K | 0], as for a monocular camera)."""
-    from sensor_msgs.msg import CameraInfo
-
-    from nmnet_ros.caminfo import info_fields
+    """sensor_msgs/CameraInfo (plumb_bob; P = [K | 0], as for a monocular camera), as the live player builds it."""
     from nmnet_ros.geometry import Camera
+    from nmnet_ros.live import camera_info_msg as build
 
-    msg = CameraInfo()
-    for key, value in info_fields(Camera(K, dist, width, height), width, height).items():
-        setattr(msg, key, [float(x) for x in value] if isinstance(value, np.ndarray) else value)
+    msg = build(Camera(K, dist, width, height))
     msg.header.frame_id = "camera"
     return msg
