@@ -170,7 +170,8 @@ class NMNetNode(Node):
         self._unpublished_s = 0  # seconds without any publisher on the image topic
         self._received_before = 0
         self._large_hint = False
-        self._rect_hint = False
+        # a topic named like image_proc's rectified output: say once if its camera_info is the distorted raw one
+        self._rect_hint_due = bool(re.search(r"(^|/|_)rect", self._image_sub.topic_name))
         # camera_info is small: best effort matches publishers of either kind and loses nothing here
         self.create_subscription(CameraInfo, "camera_info", self._on_info,
                                  QoSProfile(depth=10) if p["qos"] == "reliable" else qos_profile_sensor_data)
@@ -220,8 +221,9 @@ class NMNetNode(Node):
         """Every second: follow the image publishers' reliability (qos auto), say when frames stop, diagnostics."""
         topic = self._image_sub.topic_name
         offers = [i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in self.get_publishers_info_by_topic(topic)]
-        if self.params["qos"] == "auto" and follow_reliability(offers) != self.image_reliable:
-            self._subscribe_image(follow_reliability(offers))
+        want_reliable = follow_reliability(offers)
+        if self.params["qos"] == "auto" and want_reliable != self.image_reliable:
+            self._subscribe_image(want_reliable)
             self.get_logger().info(f"image publishers on {topic}: {sum(offers)} of {len(offers)} reliable; subscribing "
                                    + ("reliable" if self.image_reliable else "best effort"))
         self._unpublished_s = 0 if offers else self._unpublished_s + 1
@@ -251,11 +253,10 @@ class NMNetNode(Node):
         except (CameraError, ValueError) as e:
             self._warn("bad_camera_info", f"ignoring camera_info: {e}")
             return
-        topic = self._image_sub.topic_name
-        if not self.params["rectified"] and re.search(r"(^|/|_)rect", topic) and np.any(cam.dist) and not self._rect_hint:
-            self._rect_hint = True
-            self.get_logger().warning(f"{topic} looks rectified but camera_info has lens distortion, which would be "
-                                      "removed twice: set rectified:=true if these frames are rectified")
+        if self._rect_hint_due and not self.params["rectified"] and np.any(cam.dist):
+            self._rect_hint_due = False
+            self.get_logger().warning(f"{self._image_sub.topic_name} looks rectified but camera_info has lens distortion, "
+                                      "which would be removed twice: set rectified:=true if these frames are rectified")
         if self.camera is None:
             self.get_logger().info(f"camera_info received: fx={cam.K[0, 0]:.1f} fy={cam.K[1, 1]:.1f} {cam.width}x{cam.height}")
         self.camera = cam

@@ -86,13 +86,13 @@ class Run:
 
 def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, gt_file: Path | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
-                log=print, camera: Camera | None = None) -> tuple[Run, int, list[np.ndarray | None]]:
+                log=print, camera: Camera | None = None, rectified: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
     """One pass of the front end over a bag; returns the run, the frame count and the last good image.
 
-    ``camera``: the calibration to use instead of the bag's camera_info.
+    ``camera``: the calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.
     """
     reader = BagReader(bag)
-    frames, chosen = read_frames(reader, **(topics or {}))
+    frames, chosen = read_frames(reader, **(topics or {}), rectified=rectified)
     gt_tum = read_tum(gt_file) if gt_file else None
     fe = Frontend(None, config)
     run = Run(fe.config["selector"])
@@ -266,8 +266,7 @@ def main(args: argparse.Namespace) -> int:
         raise BagError(f"{args.bag}: no such bag")
     out = McapOutput(args.out)  # fails before any processing when not writable
     plots_dir = args.plots or args.out.parent
-    topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic,
-              "rectified": args.rectified}
+    topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
     camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
     if args.live:
         return main_live(args, out, camera)
@@ -276,11 +275,12 @@ def main(args: argparse.Namespace) -> int:
     try:
         cfg = {"selector": args.selector, "max_keypoints": args.max_keypoints, "detector": args.detector}
         run, n, overlay = process_bag(args.bag, out, cfg, args.gt, args.debug_images, not args.no_progress, topics,
-                                      camera=camera)
+                                      camera=camera, rectified=args.rectified)
         runs.append(run)
         if args.baseline:
             base, _, _ = process_bag(args.bag, None, {**BASELINE, "max_keypoints": args.max_keypoints}, args.gt,
-                                     progress=not args.no_progress, topics=topics, camera=camera)
+                                     progress=not args.no_progress, topics=topics, camera=camera,
+                                     rectified=args.rectified)
             base.name = "SIFT+ratio+MAGSAC++"
             runs.append(base)
     except (KeyboardInterrupt, _Terminated):
