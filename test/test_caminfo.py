@@ -52,6 +52,13 @@ def test_a_bad_camera_info_is_refused_with_the_reason():
         camera_from_info(msg)
     with pytest.raises(CameraError, match="distortion model 'fov' is not supported"):
         camera_from_info(info(model="fov"))
+    msg = info()
+    msg.k = np.ones(6)
+    with pytest.raises(CameraError, match="camera_info K must have 9 values, got 6"):
+        camera_from_info(msg)
+    msg.p = np.ones(9)
+    with pytest.raises(CameraError, match="camera_info P must have 12 values, got 9"):
+        camera_from_info(msg, rectified=True)
 
 
 def test_frames_are_fitted_to_their_calibration():

@@ -51,5 +51,9 @@ def test_missing_images_txt_and_bad_yaml(tmp_path):
     (tmp_path / "camera.yaml").write_text("image_width: 10\ncamera_matrix: {data: [0,0,0,0,0,0,0,0,1]}\n")
     with pytest.raises(DatasetError, match="camera.yaml.*focal"):
         Sequence.load(tmp_path)
+    (tmp_path / "camera.yaml").write_text("camera_matrix: {data: [500, 0, 320, 0, 500, 240, 0, 0, 1]}\n"
+                                          "distortion_model: fov\ndistortion_coefficients: {data: [0.9]}\n")
+    with pytest.raises(DatasetError, match="camera.yaml: distortion model 'fov' is not supported"):
+        Sequence.load(tmp_path)
     with pytest.raises(DatasetError, match="not a directory"):
         Sequence.load(tmp_path / "nope")
