@@ -81,3 +81,62 @@ def test_fast_detector_keeps_the_reference_accuracy_on_boat(detector):
         print(f"boat 1->{n}: kornia {ref_correct} correct, err {ref_err:.3f}; fast {correct} correct, err {err:.3f}")
         assert correct >= 0.9 * ref_correct
         assert err <= ref_err + 0.02
+
+
+@pytest.mark.parametrize("shape", [(16, 16), (17, 40), (376, 1241)])
+def test_hessian_kernel_equals_the_opencv_sobel_formula(shape):
+    """The fused kernel gives cv2.Sobel's 5x5 determinant of the Hessian, borders (reflect-101) included."""
+    from nmnet_ros.fast_hessaff import FastHessianAffine
+
+    img = cv2.GaussianBlur(np.random.default_rng(1).random(shape, np.float32), (0, 0), 1.5)
+    s2 = 2.3**2
+    k = s2 / 48
+    dxx = cv2.Sobel(img, cv2.CV_32F, 2, 0, ksize=5, scale=k)
+    dyy = cv2.Sobel(img, cv2.CV_32F, 0, 2, ksize=5, scale=k)
+    dxy = cv2.Sobel(img, cv2.CV_32F, 1, 1, ksize=5, scale=k)
+    out = np.full(shape, np.nan, np.float32)
+    FastHessianAffine._hessian(img, s2, out)
+    ref = dxx * dyy - dxy * dxy
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-5 * np.abs(ref).max())
+
+
+def _maxima_reference(r: np.ndarray, threshold: float) -> np.ndarray:
+    """(level, y, x) rows of the 3x3x3 maxima as the detector found them with cv2.dilate before the kernel."""
+    dil = [cv2.dilate(level, np.ones((3, 3), np.uint8)) for level in r]
+    rows = []
+    for i in range(1, len(r) - 1):
+        m = (r[i] >= dil[i]) & (r[i] > threshold)
+        m[[0, -1], :] = m[:, [0, -1]] = False
+        ys, xs = np.nonzero(m)
+        keep = (r[i, ys, xs] >= dil[i - 1][ys, xs]) & (r[i, ys, xs] >= dil[i + 1][ys, xs])
+        rows.append(np.stack([np.full(int(keep.sum()), i), ys[keep], xs[keep]], 1))
+    return np.concatenate(rows)
+
+
+def test_maxima_kernel_finds_the_dilation_maxima_in_their_order():
+    """Same maxima, same order (level, row, column) as the dilation reference; plateaus that overflow
+    the first buffer are counted and found on the second run."""
+    from nmnet_ros.fast_hessaff import _maxima_kernel
+
+    rng = np.random.default_rng(2)
+    r = np.stack([cv2.GaussianBlur(rng.random((60, 90), np.float32), (0, 0), 1.2) for _ in range(5)]) - 0.45
+    ref = _maxima_reference(r, 0.0)
+    out = np.empty((len(ref) + 5, 3), np.int32)
+    n = _maxima_kernel(r, np.float32(0.0), out)
+    assert n == len(ref) > 20
+    np.testing.assert_array_equal(out[:n], ref)
+    flat = np.ones((3, 20, 20), np.float32)  # a plateau: every inner sample ties with its neighbours
+    small = np.empty((10, 3), np.int32)
+    assert _maxima_kernel(flat, np.float32(0.5), small) == 18 * 18
+    np.testing.assert_array_equal(small, _maxima_reference(flat, 0.5)[:10])
+
+
+def test_extrema_survive_a_plateau_larger_than_the_maxima_buffer():
+    """A flat response above threshold: 38 x 38 tied maxima, more than the buffer sized for strict
+    maxima (20 x 20); all are found, none refined, and those far enough inside are kept."""
+    from nmnet_ros.fast_hessaff import FastHessianAffine
+
+    rows = FastHessianAffine()._extrema(np.ones((3, 40, 40), np.float32), 0)
+    # sigma = 1.6 * 2^(1/3) = 2.02, half the measurement region 6.05 px, 5 px margin: x, y in 12..27
+    assert rows.shape == (16 * 16, 4)
+    assert set(rows[:, 0]) == set(rows[:, 1]) == set(range(12, 28))
