@@ -97,8 +97,8 @@ def _stages(det, model, magsac, cam, imgs: list[np.ndarray], jpegs: list[bytes])
 
 
 def pipelined_hz(frontend, imgs: list[np.ndarray], threads: int = 1) -> float:
-    """Frames per second of the node's two-stage schedule: detection of frame t+1 on a second thread
-    while frame t is matched, scored and posed, ``threads`` CPU threads per stage (nmnet_node's default)."""
+    """Frames per second of the node's two-stage schedule: detection and matching of frame t+1 on a
+    second thread while frame t is scored and posed, ``threads`` CPU threads per stage (nmnet_node's default)."""
     import queue
     import threading
 
@@ -112,7 +112,7 @@ def pipelined_hz(frontend, imgs: list[np.ndarray], threads: int = 1) -> float:
 
     def produce() -> None:
         for img in imgs:
-            q.put((img, frontend.detect(img)))
+            q.put(frontend.prepare(img))
         q.put(None)
 
     frontend.reset()
@@ -121,9 +121,8 @@ def pipelined_hz(frontend, imgs: list[np.ndarray], threads: int = 1) -> float:
     th.start()
     n, stamp = 0, 0.0
     while (item := q.get()) is not None:
-        img, feats = item
         stamp += 0.1
-        frontend.process_features(feats, (img.shape[1], img.shape[0]), stamp)
+        frontend.process_prepared(item, stamp)
         n += 1
     th.join()
     hz = n / (time.perf_counter() - t)

@@ -1,8 +1,8 @@
 """The ROS 2 node: consecutive camera frames in, selected matches and relative pose out.
 
 Frames land in a one-slot mailbox (the newest wins; overwritten frames are counted as dropped)
-and two worker threads run the front end as a pipeline (decode+detect of frame t+1 beside
-match/NM-Net/pose of frame t), so the executor never blocks on the heavy work.
+and two worker threads run the front end as a pipeline (decode, detect and match of frame t+1
+beside NM-Net and pose of frame t), so the executor never blocks on the heavy work.
 Run: ``nmnet_node --ros-args -r image:=/cam/image_raw -r camera_info:=/cam/camera_info``.
 """
 
@@ -37,7 +37,7 @@ from .debug_view import draw_matches
 from .detectors import DEFAULT_DETECTOR, DETECTORS
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
-from .pipeline import RESTARTS, FrameResult, Frontend
+from .pipeline import RESTARTS, FrameResult, Frontend, Prepared
 from .posemsg import relative_pose_of_current
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 
@@ -103,7 +103,7 @@ class _Detected:
 
     header: object
     img: np.ndarray
-    feats: object
+    prepared: Prepared  # features, and matches to the frame stage 1 handed over before
     stamp: float
     timings: dict
     t_recv: float
@@ -276,7 +276,8 @@ class NMNetNode(Node):
 
     # -- work -------------------------------------------------------------------------------
     def _work(self) -> None:
-        """Stage 1: take the latest frame, check, decode, detect; hand over to stage 2 (waits while it is busy)."""
+        """Stage 1: take the latest frame, check, decode, detect, match to the frame before; hand over to stage 2
+        (waits while it is busy, so stage 2 gets every frame stage 1 prepared, in order)."""
         while self._running:
             with self._cv:
                 while self._slot is None and self._running:
@@ -298,7 +299,7 @@ class NMNetNode(Node):
                 self._cv.notify_all()
 
     def _relate(self) -> None:
-        """Stage 2: match against the previous frame, NM-Net, pose, publish."""
+        """Stage 2: NM-Net and pose against the previous frame, publish."""
         while self._running:
             with self._cv:
                 while self._ready is None and self._running:
@@ -352,12 +353,10 @@ class NMNetNode(Node):
         if cam is None:
             return None
         self.frontend.camera = cam
-        feats = self.frontend.detect(img)
-        timings = {"decode": 1000 * (t_dec - t), "detect": 1000 * (time.perf_counter() - t_dec)}
-        return _Detected(msg.header, img, feats, stamp, timings, t_recv)
+        return _Detected(msg.header, img, self.frontend.prepare(img), stamp, {"decode": 1000 * (t_dec - t)}, t_recv)
 
     def _finish(self, d: _Detected) -> None:
-        result = self.frontend.process_features(d.feats, (d.img.shape[1], d.img.shape[0]), d.stamp, d.timings)
+        result = self.frontend.process_prepared(d.prepared, d.stamp, d.timings)
         self.stats.processed += 1
         self._publish(d.header, d.img, result)
         self.stats.latency_ms.append(1000 * (time.perf_counter() - d.t_recv))

@@ -1,7 +1,13 @@
 """Frontend: one camera frame in, selected matches and relative pose to the previous frame out.
 
 The node, the bag tools and the demo are thin shells around this object. It keeps the previous
-frame's features so each frame is detected once.
+frame's features so each frame is detected once. Work comes in two stages that may run on two
+threads (the node's schedule): :meth:`Frontend.prepare` detects a frame and matches it to the frame
+prepared before it, :meth:`Frontend.process_prepared` relates it to the previous frame (NM-Net,
+pose). The matches are used only when they were made against the very features the second stage
+holds as its previous frame, with the current matching settings; otherwise it matches again.
+Where matching runs is decided from the measured stage costs (``match_stage: auto``): in the first
+stage when that shortens the slower stage (2000 keypoints: matching grows with N^2), else in the second.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ from .detectors import DEFAULT_DETECTOR, make_detector
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Features
 from .geometry import Camera, PoseEstimate
-from .matching import match_descriptors
+from .matching import Matches, match_descriptors
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, Selection, build
 
@@ -34,6 +40,7 @@ DEFAULT_CONFIG: dict = {
     "min_matches": 8,
     "static_flow_px": 1.0,  # median flow of the selected matches below this = camera not moving
     "time_jump_s": 1.0,  # a frame this much older than the previous one starts a new chain (bag loop, clock reset)
+    "match_stage": "auto",  # where matching runs: auto (the stage split with the shorter slower stage), first, second
 }
 
 
@@ -52,6 +59,20 @@ def _selector(c: dict) -> Callable[[Correspondences], Selection]:
 
 # statuses of a frame that starts a new chain: nothing to relate it to, no pose
 RESTARTS = ("first_frame", "size_changed", "time_jump")
+
+
+MATCH_STAGES = ("auto", "first", "second")
+
+
+def _check_match_stage(c: dict) -> None:
+    if c["match_stage"] not in MATCH_STAGES:
+        raise ValueError(f"match_stage must be one of {', '.join(MATCH_STAGES)}, got {c['match_stage']!r}")
+
+
+def match_first(detect_ms: float, match_ms: float, rest_ms: float) -> bool:
+    """Whether matching in the first stage (beside detection) makes the slower of two pipelined stages
+    faster than matching in the second (beside NM-Net and the pose)."""
+    return max(detect_ms + match_ms, rest_ms) < max(detect_ms, match_ms + rest_ms)
 
 
 @dataclass
@@ -73,16 +94,31 @@ class FrameResult:
         return int(self.mask.sum())
 
 
+@dataclass
+class Prepared:
+    """A frame after the first stage: its features, and its matches to the frame prepared before it."""
+
+    feats: Features
+    size: tuple[int, int]  # (width, height)
+    timings_ms: dict[str, float]
+    matches: Matches | None = None
+    against: Features | None = None  # the features ``matches`` were made against
+    match_key: tuple = ()  # the matching settings they were made with
+
+
 class Frontend:
     """Hessian-affine + NN matching + NM-Net (or another selector) + relative pose, frame to frame."""
 
     def __init__(self, camera: Camera | None = None, config: dict | None = None) -> None:
         self.config = {**DEFAULT_CONFIG, **(config or {})}
         c = self.config
+        _check_match_stage(c)
         self.camera = camera
         self.detector = _detector(c)
         self.select = _selector(c)
         self.prev: tuple[float, Features, tuple[int, int]] | None = None
+        self._last_prepared: tuple[Features, tuple[int, int]] | None = None  # the first stage's own previous frame
+        self._cost_ms: dict[str, float] = {}  # running means of the stages' parts, for match_stage: auto
 
     def reconfigure(self, changes: dict) -> None:
         """Apply config changes while running (the node's ``ros2 param set``).
@@ -95,29 +131,61 @@ class Frontend:
         if unknown:
             raise KeyError(f"unknown front-end setting(s) {unknown}; known: {', '.join(DEFAULT_CONFIG)}")
         c = {**self.config, **changes}
+        _check_match_stage(c)
         detector = _detector(c) if any(c[key] != self.config[key] for key in DETECTOR_KEYS) else self.detector
         select = _selector(c) if any(c[key] != self.config[key] for key in SELECTOR_KEYS) else self.select
         self.config, self.select = c, select
         if detector is not self.detector:
-            self.detector, self.prev = detector, None
+            self.detector, self.prev, self._last_prepared = detector, None, None
+            self._cost_ms.clear()  # other features, other costs
 
     def reset(self) -> None:
         """Forget the previous frame (the next frame starts a new chain)."""
-        self.prev = None
+        self.prev = self._last_prepared = None
 
     def detect(self, image: np.ndarray) -> Features:
         """Features of one image (the expensive stage)."""
         return self.detector(image)
 
+    def _match_key(self) -> tuple:
+        return (("ratio", self.config["ratio"]), ("mutual", self.config["mutual"]))
+
+    def _note_cost(self, part: str, ms: float) -> None:
+        old = self._cost_ms.get(part)
+        self._cost_ms[part] = ms if old is None else 0.8 * old + 0.2 * ms
+
+    def _match_in_first_stage(self) -> bool:
+        where = self.config["match_stage"]
+        if where != "auto":
+            return where == "first"
+        cost = [self._cost_ms.get(part) for part in ("detect", "match", "rest")]
+        return None not in cost and match_first(*cost)
+
+    def prepare(self, image: np.ndarray) -> Prepared:
+        """First stage: detect, then match to the frame prepared before this one (when of the same size)."""
+        t = time.perf_counter()
+        feats = self.detect(image)
+        p = Prepared(feats, (image.shape[1], image.shape[0]), {"detect": 1000 * (time.perf_counter() - t)})
+        self._note_cost("detect", p.timings_ms["detect"])
+        last, self._last_prepared = self._last_prepared, (feats, p.size)
+        if last is not None and last[1] == p.size and self._match_in_first_stage():
+            t = time.perf_counter()
+            p.match_key = self._match_key()
+            p.matches, p.against = match_descriptors(last[0].descriptors, feats.descriptors, dict(p.match_key)), last[0]
+            p.timings_ms["match"] = 1000 * (time.perf_counter() - t)
+            self._note_cost("match", p.timings_ms["match"])
+        return p
+
     def process(self, image: np.ndarray, stamp: float) -> FrameResult:
         """Detect, then relate to the previous frame; always keeps this frame as the next reference."""
-        t0 = time.perf_counter()
-        feats = self.detect(image)
-        return self.process_features(feats, (image.shape[1], image.shape[0]), stamp,
-                                     {"detect": 1000 * (time.perf_counter() - t0)})
+        return self.process_prepared(self.prepare(image), stamp)
+
+    def process_prepared(self, p: Prepared, stamp: float, timings: dict[str, float] | None = None) -> FrameResult:
+        """Second stage: relate a prepared frame to the previous one (its matches reused when they fit)."""
+        return self.process_features(p.feats, p.size, stamp, {**(timings or {}), **p.timings_ms}, p)
 
     def process_features(self, feats: Features, size: tuple[int, int], stamp: float,
-                         timings: dict[str, float] | None = None) -> FrameResult:
+                         timings: dict[str, float] | None = None, prepared: Prepared | None = None) -> FrameResult:
         """Match pre-computed features against the previous frame's and estimate the pose."""
         if self.camera is None:
             raise RuntimeError("Frontend has no camera: set .camera (from CameraInfo or parameters) first")
@@ -130,9 +198,13 @@ class Frontend:
         if stamp < prev[0] - self.config["time_jump_s"]:
             return FrameResult(stamp, "time_jump", timings_ms=timings, num_keypoints=len(feats))
         c = self.config
-        t = time.perf_counter()
-        m = match_descriptors(prev[1].descriptors, feats.descriptors, {"ratio": c["ratio"], "mutual": c["mutual"]})
-        timings["match"] = 1000 * (time.perf_counter() - t)
+        if prepared is not None and prepared.against is prev[1] and prepared.match_key == self._match_key():
+            m = prepared.matches
+        else:
+            t = time.perf_counter()
+            m = match_descriptors(prev[1].descriptors, feats.descriptors, dict(self._match_key()))
+            timings["match"] = 1000 * (time.perf_counter() - t)
+            self._note_cost("match", timings["match"])
         k0, k1 = prev[1].keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
         base = dict(k0=k0, k1=k1, timings_ms=timings, num_keypoints=len(feats),
                     scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool))
@@ -144,6 +216,7 @@ class Frontend:
         t = time.perf_counter()
         sel = self.select(corr)
         timings["select+pose"] = 1000 * (time.perf_counter() - t)
+        self._note_cost("rest", timings["select+pose"])
         base["scores"] = sel.scores.astype(np.float32) if sel.scores is not None else sel.mask.astype(np.float32)
         base["mask"] = sel.mask
         if sel.mask.sum() < c["min_matches"]:
