@@ -228,10 +228,13 @@ def recover_pose(E: np.ndarray, x0n: np.ndarray, x1n: np.ndarray, mask: np.ndarr
     m = np.ones(len(x0n), bool) if mask is None else np.asarray(mask, bool).copy()
     if m.sum() < 5:
         return None
-    n, R, t, m_out = cv2.recoverPose(E, x0n, x1n, np.eye(3), mask=m.astype(np.uint8)[:, None].copy())
+    idx = np.flatnonzero(m)  # only the masked points: the others never count, but OpenCV triangulates all it is given
+    n, R, t, m_out = cv2.recoverPose(E, x0n[idx], x1n[idx], np.eye(3))
     if n == 0:
         return None
-    return PoseEstimate(R=R, t=t.ravel() / max(np.linalg.norm(t), 1e-12), E=E, inliers=m_out.ravel() > 0)
+    inliers = np.zeros(len(x0n), bool)
+    inliers[idx] = m_out.ravel() > 0
+    return PoseEstimate(R=R, t=t.ravel() / max(np.linalg.norm(t), 1e-12), E=E, inliers=inliers)
 
 
 def _pose_jacobian_basis(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

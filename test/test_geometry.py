@@ -88,6 +88,22 @@ def test_weighted_eight_point_ignores_zero_weight_outliers():
     assert max(pose_error_deg(pose_bad, R, t)) > 1.0
 
 
+def test_recover_pose_equals_opencv_on_all_points_with_the_mask():
+    """recover_pose triangulates only the masked points; OpenCV given all of them and the mask picks the
+    same R, t and marks the same points (the unmasked never count)."""
+    import cv2
+
+    x0, x1, R, t = noisy_with_outliers(seed=3)
+    E, mask = estimate_essential(x0, x1, "magsac", 0.5 / 500)
+    assert 0.3 < mask.mean() < 0.9  # a real partial mask
+    pose = recover_pose(E, x0, x1, mask)
+    n, R_cv, t_cv, m_cv = cv2.recoverPose(E, x0, x1, np.eye(3), mask=mask.astype(np.uint8)[:, None].copy())
+    np.testing.assert_array_equal(pose.R, R_cv)
+    np.testing.assert_array_equal(pose.t, t_cv.ravel() / np.linalg.norm(t_cv))
+    np.testing.assert_array_equal(pose.inliers, m_cv.ravel() > 0)
+    assert pose.inliers.sum() == n and not pose.inliers[~mask].any()
+
+
 def noisy_with_outliers(seed=0, n=600, noise_px=0.3, outliers=0.3, f=500.0):
     """Normalised matches with pixel noise and a fraction of gross outliers, and the true pose."""
     x0, x1, R, t = synthetic(n, seed)
