@@ -8,7 +8,8 @@ step runs on all keypoints at once: one compiled (numba) bilinear sampler per py
 samples every patch, the affine moments are batched tensor reductions, and orientation and
 RootSIFT are compiled kernels that keep each keypoint's histograms in registers. The affine step
 samples a smoothed structure tensor (image gradients computed once per level) instead of
-differentiating patches, so a 10 x 10 grid suffices for its weighted sums.
+differentiating patches, so a 10 x 10 grid suffices for its weighted sums. The scale space's
+determinant of the Hessian (one pass per level) and its 3x3x3 maxima (one scan per octave) are compiled kernels too.
 
 Patch convention (as kornia's ``extract_patches_from_pyramid``): cell (i, j) of a PS x PS patch
 samples ``c + A @ (u_j, u_i)`` with ``u_k = (2k + 1) / PS - 1`` from pyramid level
