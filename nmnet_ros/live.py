@@ -138,6 +138,9 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
                 stats["published"] += 1
             else:
                 pub_info.publish(msg)
+        # the camera is done: no publisher left, so the node does not take the drain for a stalled camera (no_frames)
+        player.destroy_publisher(pub_img)
+        player.destroy_publisher(pub_info)
         # drain: wait until results stop coming
         last, quiet = stats["results"], time.monotonic()
         while time.monotonic() - quiet < 8.0:
