@@ -117,7 +117,7 @@ class Frontend:
         self.detector = _detector(c)
         self.select = _selector(c)
         self.prev: tuple[float, Features, tuple[int, int]] | None = None
-        self._last_prepared: tuple[Features, tuple[int, int]] | None = None  # the first stage's own previous frame
+        self._last_prepared: Prepared | None = None  # the first stage's own previous frame
         self._cost_ms: dict[str, float] = {}  # running means of the stages' parts, for match_stage: auto
 
     def reconfigure(self, changes: dict) -> None:
@@ -161,19 +161,24 @@ class Frontend:
         cost = [self._cost_ms.get(part) for part in ("detect", "match", "rest")]
         return None not in cost and match_first(*cost)
 
+    def _match(self, f0: Features, f1: Features, timings: dict[str, float]) -> Matches:
+        """Putative matches with the current settings, timed (and noted as a stage cost)."""
+        t = time.perf_counter()
+        m = match_descriptors(f0.descriptors, f1.descriptors, dict(self._match_key()))
+        timings["match"] = 1000 * (time.perf_counter() - t)
+        self._note_cost("match", timings["match"])
+        return m
+
     def prepare(self, image: np.ndarray) -> Prepared:
         """First stage: detect, then match to the frame prepared before this one (when of the same size)."""
         t = time.perf_counter()
-        feats = self.detect(image)
-        p = Prepared(feats, (image.shape[1], image.shape[0]), {"detect": 1000 * (time.perf_counter() - t)})
+        p = Prepared(self.detect(image), (image.shape[1], image.shape[0]), {})
+        p.timings_ms["detect"] = 1000 * (time.perf_counter() - t)
         self._note_cost("detect", p.timings_ms["detect"])
-        last, self._last_prepared = self._last_prepared, (feats, p.size)
-        if last is not None and last[1] == p.size and self._match_in_first_stage():
-            t = time.perf_counter()
-            p.match_key = self._match_key()
-            p.matches, p.against = match_descriptors(last[0].descriptors, feats.descriptors, dict(p.match_key)), last[0]
-            p.timings_ms["match"] = 1000 * (time.perf_counter() - t)
-            self._note_cost("match", p.timings_ms["match"])
+        last, self._last_prepared = self._last_prepared, p
+        if last is not None and last.size == p.size and self._match_in_first_stage():
+            p.match_key, p.against = self._match_key(), last.feats
+            p.matches = self._match(last.feats, p.feats, p.timings_ms)
         return p
 
     def process(self, image: np.ndarray, stamp: float) -> FrameResult:
@@ -181,15 +186,12 @@ class Frontend:
         return self.process_prepared(self.prepare(image), stamp)
 
     def process_prepared(self, p: Prepared, stamp: float, timings: dict[str, float] | None = None) -> FrameResult:
-        """Second stage: relate a prepared frame to the previous one (its matches reused when they fit)."""
-        return self.process_features(p.feats, p.size, stamp, {**(timings or {}), **p.timings_ms}, p)
-
-    def process_features(self, feats: Features, size: tuple[int, int], stamp: float,
-                         timings: dict[str, float] | None = None, prepared: Prepared | None = None) -> FrameResult:
-        """Match pre-computed features against the previous frame's and estimate the pose."""
+        """Second stage: relate a prepared frame to the previous one (its matches reused when they were
+        made against that very frame with the current settings)."""
         if self.camera is None:
             raise RuntimeError("Frontend has no camera: set .camera (from CameraInfo or parameters) first")
-        timings = dict(timings or {})
+        feats, size = p.feats, p.size
+        timings = {**(timings or {}), **p.timings_ms}
         prev, self.prev = self.prev, (stamp, feats, size)
         if prev is None:
             return FrameResult(stamp, "first_frame", timings_ms=timings, num_keypoints=len(feats))
@@ -198,13 +200,8 @@ class Frontend:
         if stamp < prev[0] - self.config["time_jump_s"]:
             return FrameResult(stamp, "time_jump", timings_ms=timings, num_keypoints=len(feats))
         c = self.config
-        if prepared is not None and prepared.against is prev[1] and prepared.match_key == self._match_key():
-            m = prepared.matches
-        else:
-            t = time.perf_counter()
-            m = match_descriptors(prev[1].descriptors, feats.descriptors, dict(self._match_key()))
-            timings["match"] = 1000 * (time.perf_counter() - t)
-            self._note_cost("match", timings["match"])
+        fits = p.against is prev[1] and p.match_key == self._match_key()
+        m = p.matches if fits else self._match(prev[1], feats, timings)
         k0, k1 = prev[1].keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
         base = dict(k0=k0, k1=k1, timings_ms=timings, num_keypoints=len(feats),
                     scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool))
