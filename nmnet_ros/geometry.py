@@ -225,10 +225,12 @@ def recover_pose(E: np.ndarray, x0n: np.ndarray, x1n: np.ndarray, mask: np.ndarr
     x0n, x1n = _checked_pair(x0n, x1n)
     if E is None or len(x0n) < 5:
         return None
-    m = np.ones(len(x0n), bool) if mask is None else np.asarray(mask, bool).copy()
-    if m.sum() < 5:
+    if mask is not None and len(mask) != len(x0n):
+        raise ValueError(f"mask length {len(mask)} does not match {len(x0n)} correspondences")
+    # only the masked points: the others never count, but OpenCV triangulates all it is given
+    idx = np.arange(len(x0n)) if mask is None else np.flatnonzero(mask)
+    if len(idx) < 5:
         return None
-    idx = np.flatnonzero(m)  # only the masked points: the others never count, but OpenCV triangulates all it is given
     n, R, t, m_out = cv2.recoverPose(E, x0n[idx], x1n[idx], np.eye(3))
     if n == 0:
         return None

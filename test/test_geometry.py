@@ -102,6 +102,9 @@ def test_recover_pose_equals_opencv_on_all_points_with_the_mask():
     np.testing.assert_array_equal(pose.t, t_cv.ravel() / np.linalg.norm(t_cv))
     np.testing.assert_array_equal(pose.inliers, m_cv.ravel() > 0)
     assert pose.inliers.sum() == n and not pose.inliers[~mask].any()
+    assert recover_pose(E, x0, x1, np.arange(len(x0)) < 4) is None  # fewer than 5 masked points
+    with pytest.raises(ValueError, match="mask length 10 does not match 600"):
+        recover_pose(E, x0, x1, mask[:10])
 
 
 def noisy_with_outliers(seed=0, n=600, noise_px=0.3, outliers=0.3, f=500.0):
