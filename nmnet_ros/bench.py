@@ -140,14 +140,15 @@ def bench_pipeline(frames: list[np.ndarray], camera, sizes: tuple[int, ...] = (1
     from .features import HessianAffine, SiftSimilarity
     from .matching import match_descriptors
     from .model import load_model
-    from .model_fast import FastNMNet
+    from .model_fast import FastNMNet, resolve_precision
     from .neighbors import compatibility_neighbors
     from .pipeline import Frontend
     from .selectors import Correspondences, build, nmnet_logits
 
     out: dict = {}
     ref_model = load_model()
-    model = FastNMNet(ref_model)
+    model = FastNMNet(ref_model, resolve_precision("auto"))  # what the node runs on this CPU
+    model32 = FastNMNet(ref_model) if model.dtype != torch.float32 else None  # and the exact network beside it
     magsac = build("magsac")
     ratio_magsac = build("ratio+magsac")
     for label, shape in (("640x480", (640, 480)), ("native", None)):
@@ -159,13 +160,18 @@ def bench_pipeline(frames: list[np.ndarray], camera, sizes: tuple[int, ...] = (1
             st, feats = _stages(FastHessianAffine({"max_keypoints": n}), model, magsac, cam, imgs, jpegs)
             row: dict = {k: {"median": float(np.median(v)), "p90": float(np.percentile(v, 90))} for k, v in st.items()}
             row["serial_hz"] = 1000.0 / row["total"]["median"]
-            # the node's schedule, and as a same-process baseline matching always beside NM-Net (before
-            # match_stage auto); in the order A B B A, so that a drift of the machine's speed cancels
+            # the node's schedule, and as same-process baselines matching always beside NM-Net (before
+            # match_stage auto) and NM-Net in float32 (where auto picks bfloat16); in the order A B C C B A,
+            # so that a drift of the machine's speed cancels
             fe = {m: Frontend(cam, {"max_keypoints": n, "match_stage": m}) for m in ("auto", "second")}
-            hz = {m: [] for m in fe}
-            for m in ("auto", "second", "second", "auto"):
+            if model32 is not None:
+                fe["float32"] = Frontend(cam, {"max_keypoints": n, "precision": "float32"})
+            hz: dict[str, list[float]] = {m: [] for m in fe}
+            for m in [*fe, *reversed(fe)]:
                 hz[m].append(pipelined_hz(fe[m], imgs))
             row["end_to_end_hz"], row["end_to_end_hz_match_stage2"] = (float(np.mean(hz[m])) for m in ("auto", "second"))
+            if model32 is not None:
+                row["end_to_end_hz_float32"] = float(np.mean(hz["float32"]))
             base, sift_ms = [], []
             sift = SiftSimilarity({"max_keypoints": 2000})
             prev = None
@@ -194,6 +200,8 @@ def bench_pipeline(frames: list[np.ndarray], camera, sizes: tuple[int, ...] = (1
                 nb = compatibility_neighbors(k0, a0, k1, a1)
                 row["reference_nmnet_ms"] = float(np.median(timeit(partial(nmnet_logits, ref_model, c, nb), 5)))
                 row["fast_nmnet_ms"] = float(np.median(timeit(partial(nmnet_logits, model, c, nb), 5)))
+                if model32 is not None:
+                    row["fast_nmnet_float32_ms"] = float(np.median(timeit(partial(nmnet_logits, model32, c, nb), 5)))
             out[f"{label}_N{n}"] = row
     return out
 
@@ -236,12 +244,19 @@ def main(args: argparse.Namespace) -> int:
                  for key, r in res["pipeline"].items()]
         print("\npipelined with matching always in stage 2 (beside NM-Net; auto moves it beside detection when that "
               "shortens the slower stage): " + ", ".join(split))
+        f32 = [f"{key} {r['end_to_end_hz_float32']:.1f} Hz (bfloat16 {r['end_to_end_hz'] / r['end_to_end_hz_float32']:.2f}x)"
+               for key, r in res["pipeline"].items() if "end_to_end_hz_float32" in r]
+        if f32:
+            print("pipelined with NM-Net in float32 (auto runs it in bfloat16 on this CPU): " + ", ".join(f32))
         for key, r in res["pipeline"].items():
             if "reference_detect_ms" in r:
                 print(f"\nsame process, {key}: kornia reference detector {r['reference_detect_ms']:.0f} ms vs fast "
                       f"{r['detect']['median']:.0f} ms ({r['reference_detect_ms'] / r['detect']['median']:.1f}x); reference NM-Net "
                       f"{r['reference_nmnet_ms']:.0f} ms vs fast {r['fast_nmnet_ms']:.0f} ms "
                       f"({r['reference_nmnet_ms'] / r['fast_nmnet_ms']:.1f}x)")
+                if "fast_nmnet_float32_ms" in r:
+                    print(f"same process, {key}: fast NM-Net float32 {r['fast_nmnet_float32_ms']:.0f} ms vs bfloat16 "
+                          f"{r['fast_nmnet_ms']:.0f} ms ({r['fast_nmnet_float32_ms'] / r['fast_nmnet_ms']:.2f}x)")
         sift = [f"{key.split('_')[0]} {r['sift_detect_ms']:.0f} ms" for key, r in res["pipeline"].items() if key.endswith("N2000")]
         print("\nOpenCV SIFT (2000 kp, similarity frames, --detector sift) detect+describe: " + ", ".join(sift))
     if args.json:

@@ -22,6 +22,7 @@ from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
+from .model_fast import PRECISIONS, precision_note
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, ROBUST, build
@@ -209,6 +210,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="runs of every MAGSAC++/RANSAC method per pair, each with other random samples (metrics: the mean)")
     p.add_argument("--refine-iterations", type=int, default=SELECTOR_DEFAULTS["refine_iterations"],
                    help="robust pose polish after every MAGSAC++/RANSAC fit (0 = the plain OpenCV estimate)")
+    p.add_argument("--precision", default=SELECTOR_DEFAULTS["precision"], choices=PRECISIONS,
+                   help="NM-Net arithmetic (default: the node's auto, bfloat16 where the CPU has it natively)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -240,10 +243,12 @@ def main(args: argparse.Namespace) -> int:
         pairs += chosen
         groups += [label] * len(chosen)
     res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px,
-                                             "refine_iterations": args.refine_iterations, "max_iters": args.max_iters},
+                                             "refine_iterations": args.refine_iterations, "max_iters": args.max_iters,
+                                             "precision": args.precision},
                    args.seeds)
     runs = f"; MAGSAC++/RANSAC methods: mean of {args.seeds} seeds" if args.seeds > 1 else ""
-    print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%{runs}\n")
+    print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%{runs}; "
+          f"NM-Net in {precision_note(args.precision)}\n")
     print(markdown_table(res["metrics"]))
     if args.reference in res["errors"] and len(res["errors"]) > 1:
         print("\n" + "\n".join(difference_lines(res["errors"], args.reference)))

@@ -37,6 +37,7 @@ from .debug_view import draw_matches
 from .detectors import DEFAULT_DETECTOR, DETECTORS
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
+from .model_fast import PRECISIONS, precision_note
 from .pipeline import RESTARTS, FrameResult, Frontend, Prepared
 from .posemsg import relative_pose_of_current
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
@@ -50,6 +51,9 @@ PARAMS: dict[str, tuple] = {
     "k": (8, "compatibility neighbours per correspondence (the shipped network is trained with 8)", (2, 16)),
     "score_threshold": (-1.0, "NM-Net inlier probability above which a match is published; -1 = the threshold "
                               "calibrated on validation and stored with the weights", (-1.0, 1.0)),
+    "nmnet_precision": ("auto", "NM-Net arithmetic: auto (bfloat16 where the CPU has native bfloat16, else float32), "
+                        "float32 (the exact network), bfloat16 (1.7x faster NM-Net with AVX512-BF16; same accuracy on "
+                        "validation)", PRECISIONS),
     "matching": ("nn", "putative matches: nn (paper), mutual, ratio (Lowe 0.8)", ("nn", "mutual", "ratio")),
     "pose_estimator": ("ratio_magsac", "ratio_magsac: MAGSAC++ on the matches NM-Net and mutual NN + ratio 0.8 both keep; "
                        "magsac: MAGSAC++ on NM-Net's selection; weighted8: eight-point weighted by NM-Net scores; "
@@ -87,6 +91,7 @@ def frontend_config(p: dict) -> dict:
         "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
         "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
         "threshold_px": p["pose_threshold_px"], "refine_iterations": p["pose_refine_iterations"],
+        "precision": p["nmnet_precision"],
     }
 
 
@@ -151,6 +156,7 @@ class NMNetNode(Node):
         torch.set_num_threads(p["threads"])
         cv2.setNumThreads(p["threads"])
         self.frontend = Frontend(None, frontend_config(p))
+        self.get_logger().info(f"NM-Net arithmetic: {precision_note(p['nmnet_precision'])}")
         # the calibration as received (camera_info, else the fx..cy parameters); each frame gets it fitted to its size
         self.camera: Camera | None = None
         if p["fx"] > 0 and p["fy"] > 0:

@@ -35,6 +35,7 @@ DEFAULT_CONFIG: dict = {
     "k": 8,  # compatibility neighbours per correspondence
     "threshold_px": SELECTOR_DEFAULTS["threshold_px"],  # MAGSAC++ inlier threshold, pixels
     "refine_iterations": SELECTOR_DEFAULTS["refine_iterations"],  # robust pose polish after MAGSAC++ (0 = off)
+    "precision": SELECTOR_DEFAULTS["precision"],  # NM-Net: auto (bfloat16 where native), float32, bfloat16
     "ratio": None,  # optional ratio test on the putative matches (the paper uses none)
     "mutual": False,
     "min_matches": 8,
@@ -45,7 +46,7 @@ DEFAULT_CONFIG: dict = {
 
 
 DETECTOR_KEYS = ("detector", "max_keypoints")
-SELECTOR_CONFIG = ("score_threshold", "k", "threshold_px", "refine_iterations")  # passed on to selectors.build
+SELECTOR_CONFIG = ("score_threshold", "k", "threshold_px", "refine_iterations", "precision")  # passed on to selectors.build
 SELECTOR_KEYS = ("selector", "weights", *SELECTOR_CONFIG)
 
 

@@ -89,3 +89,29 @@ def test_fast_model_logits_equal_the_reference(variant, n, k):
     fast = FastNMNet(model)(x, nb)
     assert fast.dtype == torch.float32 and fast.shape == ref.shape and ref.abs().max() > 1  # real, non-trivial logits
     torch.testing.assert_close(fast.double(), ref64, atol=1e-4 + 1e-5 * ref64.abs().max().item(), rtol=0)
+
+
+def test_bfloat16_normalisation_rounds_as_torch():
+    """On bfloat16 activations the normalisation kernel computes as on float32 ones and rounds its output
+    to nearest even, bit for bit what torch's conversion gives (with and without residual and ReLU)."""
+    from nmnet_ros.model_fast import _norm
+
+    g = torch.Generator().manual_seed(0)
+    x = (torch.randn(3000, 64, generator=g) * 3 + 1).bfloat16()
+    res = torch.randn(3000, 64, generator=g).bfloat16()
+    norm = (torch.rand(64, generator=g) + 0.5, torch.randn(64, generator=g), 1e-3)
+    for relu, r in ((True, res), (False, None), (True, None)):
+        out = _norm(x.clone(), norm, relu, r)
+        ref = _norm(x.float(), norm, relu, None if r is None else r.float()).bfloat16()
+        assert out.dtype == torch.bfloat16 and torch.equal(out, ref)
+        assert relu == bool((out >= 0).all())
+
+
+def test_precision_choices():
+    from nmnet_ros.model_fast import native_bf16, precision_note, resolve_precision
+
+    assert resolve_precision("float32") is torch.float32 and resolve_precision("bfloat16") is torch.bfloat16
+    assert resolve_precision("auto") is (torch.bfloat16 if native_bf16() else torch.float32)
+    assert precision_note("auto").startswith("bfloat16 (auto" if native_bf16() else "float32 (auto")
+    with pytest.raises(ValueError, match="'float16'; use one of auto, float32, bfloat16"):
+        resolve_precision("float16")

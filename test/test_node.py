@@ -482,19 +482,20 @@ def test_parameters_change_while_running(ros, tmp_path):
         refused = {  # name: (value, what the reason says); the type check and its words are rclpy's
             "matching": ("fancy", "'fancy' is not one of"), "weights": (missing, f"{missing}: weights file not found"),
             "qos": ("reliable", "read-only parameter: qos"), "pose_threshold_px": (0.0, "pose_threshold_px out of range"),
-            "max_keypoints": ("lots", "Wrong parameter type"),
+            "max_keypoints": ("lots", "Wrong parameter type"), "nmnet_precision": ("float16", "'float16' is not one of"),
         }
         results = set_params(peer, {name: value for name, (value, _) in refused.items()})
         for (name, (_, reason)), r in zip(refused.items(), results, strict=True):
             assert not r.successful and reason in r.reason, (name, r.reason)
         assert get_params(peer, list(refused) + ["pose_estimator"]) == {"matching": "nn", "weights": "", "qos": "auto",
                                                                         "pose_threshold_px": 0.15, "max_keypoints": 1000,
-                                                                        "pose_estimator": "classic"}
+                                                                        "pose_estimator": "classic", "nmnet_precision": "auto"}
         assert np.all(frame(44, 5.0) == 1.0)  # still running, still classic
     finally:
         peer.close()
         node.stop()
     assert "parameters changed: {'score_threshold': 0.95}" in node.output()
+    assert "NM-Net arithmetic: " in node.output()  # what the network runs in on this CPU, said at start-up
 
 
 @pytest.mark.parametrize("name, value", [("matching", "fancy"), ("pose_threshold_px", "0.0"), ("max_keypoints", "lots")],
