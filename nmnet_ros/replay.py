@@ -24,7 +24,9 @@ from .debug_view import draw_matches
 from .detectors import DETECTORS
 from .geometry import Camera, pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
+from .model_fast import PRECISIONS
 from .pipeline import RESTARTS, FrameResult, Frontend
+from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
 FAILED = ("too_few_matches", "pose_failed")
@@ -253,6 +255,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--selector", default="nmnet+ratio+magsac", help="correspondence selector (see nmnet eval)")
     p.add_argument("--detector", default="hessian-affine-fast", choices=sorted(DETECTORS), help="local feature frames")
     p.add_argument("--max-keypoints", type=int, default=2000)
+    p.add_argument("--precision", default=SELECTOR_DEFAULTS["precision"], choices=PRECISIONS,
+                   help="NM-Net arithmetic (the node's nmnet_precision; auto: bfloat16 where the CPU has it natively)")
     p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
     p.add_argument("--baseline", action="store_true", help="also run SIFT + ratio + MAGSAC++ on the same frames and print both")
     p.add_argument("--no-progress", action="store_true")
@@ -273,7 +277,8 @@ def main(args: argparse.Namespace) -> int:
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
-        cfg = {"selector": args.selector, "max_keypoints": args.max_keypoints, "detector": args.detector}
+        cfg = {"selector": args.selector, "max_keypoints": args.max_keypoints, "detector": args.detector,
+               "precision": args.precision}
         run, n, overlay = process_bag(args.bag, out, cfg, args.gt, args.debug_images, not args.no_progress, topics,
                                       camera=camera, rectified=args.rectified)
         runs.append(run)
@@ -326,7 +331,8 @@ def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None =
     t0 = time.perf_counter()
     try:
         stats = play_live(args.bag, out, args.rate, ["-p", f"max_keypoints:={args.max_keypoints}", "-p", f"detector:={args.detector}",
-                                                     "-p", f"rectified:={str(args.rectified).lower()}"], camera=camera)
+                                                     "-p", f"rectified:={str(args.rectified).lower()}",
+                                                     "-p", f"nmnet_precision:={args.precision}"], camera=camera)
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130
