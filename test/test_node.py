@@ -578,3 +578,18 @@ def test_node_module_caps_malloc_arenas_unless_the_user_set_it():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env={**env, "MALLOC_ARENA_MAX": "4"},
                          cwd=ROOT, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_params_file_and_readme_list_every_parameter_with_its_default():
+    """config/nmnet.yaml (what users copy) holds every node parameter at its default, and the README's
+    parameter table has a row for each, with that default."""
+    import yaml
+
+    from nmnet_ros.node import PARAMS
+
+    params = yaml.safe_load((ROOT / "config" / "nmnet.yaml").read_text())["/**"]["ros__parameters"]
+    assert params == {name: default for name, (default, _, _) in PARAMS.items()}
+    readme = (ROOT / "README.md").read_text()
+    for name, (default, _, _) in PARAMS.items():
+        shown = str(default).lower() if isinstance(default, bool) else f'"{default}"' if default == "" else default
+        assert f"| `{name}` | `{shown}` |" in readme, name
