@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -22,6 +23,50 @@ def ros_env(domain: int) -> dict[str, str]:
     env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", FASTDDS_BUILTIN_TRANSPORTS="LARGE_DATA",
                PYTHONUNBUFFERED="1")
     return env
+
+
+def launch_node_args(path: Path, args: dict[str, str]) -> list[str]:
+    """The ``--ros-args`` that ``ros2 launch`` gives the one node of a launch XML file, with ``args``.
+
+    launch / launch_ros have no wheels here, so this reads the few tags and substitutions the
+    shipped file uses (arg, node, param from/name, remap; $(var), $(find-pkg-share nmnet_ros)) and
+    fails on anything else. find-pkg-share is the source tree: setup.py installs config/ and launch/
+    under share/nmnet_ros.
+    """
+    import xml.etree.ElementTree as ET
+
+    values: dict[str, str] = {}
+
+    def sub(text: str) -> str:
+        def one(m: re.Match) -> str:
+            if m.group(1) == "var":
+                return values[m.group(2)]
+            if m.group(1) == "find-pkg-share" and m.group(2) == "nmnet_ros":
+                return str(ROOT)
+            raise ValueError(f"substitution {m.group(0)} not understood")
+        return re.sub(r"\$\((\S+) ([^)]+)\)", one, text)
+
+    out: list[str] = []
+    for el in ET.parse(path).getroot():
+        if el.tag == "arg":
+            values[el.get("name")] = args.get(el.get("name"), sub(el.get("default", "")))
+        elif el.tag == "node" and (el.get("pkg"), el.get("exec")) == ("nmnet_ros", "nmnet_node"):
+            out += ["-r", f"__node:={el.get('name')}"]
+            for p in el:
+                if p.tag == "param" and p.get("from"):
+                    out += ["--params-file", sub(p.get("from"))]
+                elif p.tag == "param":
+                    out += ["-p", f"{p.get('name')}:={sub(p.get('value'))}"]
+                elif p.tag == "remap":
+                    out += ["-r", f"{p.get('from')}:={sub(p.get('to'))}"]
+                else:
+                    raise ValueError(f"<{p.tag}> in <node> not understood")
+        else:
+            raise ValueError(f"<{el.tag} {el.attrib}> not understood")
+    unknown = set(args) - set(values)
+    if unknown:
+        raise ValueError(f"launch arguments {sorted(unknown)} are not declared in {path}")
+    return out
 
 
 def unique_domain() -> int:

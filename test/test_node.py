@@ -13,7 +13,7 @@ from nmnet_ros.datasets import Sequence
 from nmnet_ros.geometry import rotation_error_deg
 
 from .conftest import ROOT, data_dir
-from .rosharness import NodeProcess, camera_info_msg, compressed_msg, image_msg, ros_env, spin_until, unique_domain
+from .rosharness import NodeProcess, camera_info_msg, compressed_msg, image_msg, launch_node_args, ros_env, spin_until, unique_domain
 
 rclpy = pytest.importorskip("rclpy")
 
@@ -150,7 +150,9 @@ def kitti_info(seq: Sequence):
     return camera_info_msg(seq.camera.K, seq.camera.dist, seq.camera.width, seq.camera.height)
 
 
-RAW = (["--params-file", str(ROOT / "config" / "nmnet.yaml"), "-r", "image:=/cam/image_raw", "-r", "camera_info:=/cam/camera_info"],
+# the raw run starts the node as the shipped launch file does (params file, remaps, node name)
+LAUNCH = ROOT / "launch" / "nmnet.launch.xml"
+RAW = (launch_node_args(LAUNCH, {"image": "/cam/image_raw", "camera_info": "/cam/camera_info"}),
        {"image_topic": "/cam/image_raw", "info_topic": "/cam/camera_info"}, image_msg, range(40, 60), signal.SIGTERM)
 # the compressed run also exercises the network-free pose_estimator
 COMPRESSED = (["-p", "use_compressed:=true", "-p", "pose_estimator:=classic"], {"compressed": True}, compressed_msg, range(100, 120),
@@ -593,3 +595,36 @@ def test_params_file_and_readme_list_every_parameter_with_its_default():
     for name, (default, _, _) in PARAMS.items():
         shown = str(default).lower() if isinstance(default, bool) else f'"{default}"' if default == "" else default
         assert f"| `{name}` | `{shown}` |" in readme, name
+
+
+def test_launch_file_gives_the_tested_invocation():
+    """What `ros2 launch nmnet_ros nmnet.launch.xml image:=... camera_info:=...` runs: the shipped params
+    file, the node's three input topics remapped, use_compressed passed through (the raw DDS test above
+    starts the node with exactly these arguments); an undeclared launch argument is an error."""
+    args = launch_node_args(LAUNCH, {"image": "/cam/image_raw", "camera_info": "/cam/camera_info", "use_compressed": "true"})
+    assert args == ["-r", "__node:=nmnet_node", "--params-file", str(ROOT / "config" / "nmnet.yaml"),
+                    "-p", "use_compressed:=true", "-r", "image:=/cam/image_raw", "-r", "image/compressed:=/cam/image_raw/compressed",
+                    "-r", "camera_info:=/cam/camera_info"]
+    with pytest.raises(ValueError, match="camera_topic"):
+        launch_node_args(LAUNCH, {"camera_topic": "/cam/image_raw"})
+
+
+def test_the_package_installs_launch_config_and_ament_index(tmp_path):
+    """A wheel of the package (what pip and colcon's ament_python install) carries the launch file, the
+    params file, package.xml and the ament index marker under share/, and both console scripts."""
+    import shutil
+    import subprocess
+    import sys
+    import zipfile
+
+    src = tmp_path / "src"  # built from a copy: setuptools writes build/ next to the sources
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".*", "build", "*.egg-info", "__pycache__", "docs", "test", "nmnet_demo"))
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path), str(src)],
+                   check=True, capture_output=True, cwd=tmp_path)
+    (wheel,) = tmp_path.glob("nmnet_ros-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    share = {n.split("/data/", 1)[1] for n in names if ".data/data/" in n}
+    assert {"share/nmnet_ros/launch/nmnet.launch.xml", "share/nmnet_ros/config/nmnet.yaml", "share/nmnet_ros/package.xml",
+            "share/ament_index/resource_index/packages/nmnet_ros"} <= share
+    entry = next(zipfile.ZipFile(wheel).read(n).decode() for n in names if n.endswith("entry_points.txt"))
+    assert "nmnet_node = nmnet_ros.node:main" in entry and "nmnet = nmnet_ros.cli:main" in entry
