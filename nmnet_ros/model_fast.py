@@ -33,6 +33,9 @@ from .model import NMNet, ResBlock
 
 Norm = tuple[torch.Tensor, torch.Tensor, float]  # BN scale, BN shift, IN eps
 PRECISIONS = ("auto", "float32", "bfloat16")
+# bfloat16 pads N to a multiple of this: oneDNN builds (JITs) a GEMM kernel for every new shape, ~9 ms
+# per frame with a new N; padded, a stream of frames meets at most max_keypoints / PAD shapes
+PAD = 64
 
 
 @functools.cache
@@ -120,18 +123,19 @@ def _fold_norm(seq: torch.nn.Sequential) -> Norm:
 
 
 @numba.njit(parallel=True, cache=True, boundscheck=False)
-def _norm_kernel(x, a, b, eps, res, relu):  # pragma: no cover - compiled
-    """In place: x = [relu]((x - mean) * a / sqrt(var + eps) + b [+ res]), moments per column.
+def _norm_kernel(x, valid, a, b, eps, res, relu):  # pragma: no cover - compiled
+    """In place: x = [relu]((x - mean) * a / sqrt(var + eps) + b [+ res]), moments per column over the
+    first ``valid`` rows (the rest is padding: normalised alike, never counted).
 
     Moments in one read pass with float64 sums (no cancellation for float32 data), then one
     read-write pass: two sweeps over x where separate torch ops need six. x and res are float
     arrays, or bfloat16 bits (uint16): then the arithmetic is in a's dtype (float32).
     """
     rows, cols = x.shape
-    tasks = min(rows, 64)
+    tasks = min(valid, 64)
     part = np.zeros((tasks, 2, cols))
     for t in numba.prange(tasks):
-        for r in range(t * rows // tasks, (t + 1) * rows // tasks):
+        for r in range(t * valid // tasks, (t + 1) * valid // tasks):
             for c in range(cols):
                 v = np.float64(_get(x, r, c))
                 part[t, 0, c] += v
@@ -139,10 +143,11 @@ def _norm_kernel(x, a, b, eps, res, relu):  # pragma: no cover - compiled
     mean = np.empty(cols, a.dtype)
     scale = np.empty(cols, a.dtype)
     for c in range(cols):
-        m = part[:, 0, c].sum() / rows
-        var = max(part[:, 1, c].sum() / rows - m * m, 0.0)
+        m = part[:, 0, c].sum() / valid
+        var = max(part[:, 1, c].sum() / valid - m * m, 0.0)
         mean[c] = m
         scale[c] = a[c] / np.sqrt(var + eps)
+    tasks = min(rows, 64)
     for t in numba.prange(tasks):
         for r in range(t * rows // tasks, (t + 1) * rows // tasks):
             for c in range(cols):
@@ -157,12 +162,12 @@ def _array(t: torch.Tensor) -> np.ndarray:
     return t.view(torch.uint16).numpy() if t.dtype == torch.bfloat16 else t.numpy()
 
 
-def _norm(x: torch.Tensor, norm: Norm, relu: bool, residual: torch.Tensor | None = None) -> torch.Tensor:
-    """InstanceNorm over the rows (all correspondences and neighbours) + folded BatchNorm
-    (+ residual) (+ ReLU), in place on x (a fresh GEMM output)."""
+def _norm(x: torch.Tensor, norm: Norm, relu: bool, residual: torch.Tensor | None = None, valid: int | None = None) -> torch.Tensor:
+    """InstanceNorm over the rows (all correspondences and neighbours; the first ``valid`` when the
+    rest is padding) + folded BatchNorm (+ residual) (+ ReLU), in place on x (a fresh GEMM output)."""
     a, b, eps = norm
     res = _array(residual.contiguous()) if residual is not None else _array(x[:0])
-    launch(_norm_kernel, _array(x), a.numpy(), b.numpy(), eps, res, relu)
+    launch(_norm_kernel, _array(x), len(x) if valid is None else valid, a.numpy(), b.numpy(), eps, res, relu)
     return x
 
 
@@ -208,15 +213,16 @@ class _Block:
         self.ws = sc.weight.detach()[:, :, 0, 0].t().contiguous().to(dtype) if conv else None
         self.bs = sc.bias.detach().clone().to(dtype) if conv else None
 
-    def __call__(self, x: torch.Tensor, n: int, k: int) -> tuple[torch.Tensor, int]:
+    def __call__(self, x: torch.Tensor, n: int, k: int, real: int) -> tuple[torch.Tensor, int]:
+        """x (n*k, C) -> (n*k_out, C_out); the first ``real`` of the n correspondences are data."""
         k_out = (k - 1) // self.stride + 1
-        y = _norm(_conv13(x, self.w1, n, k, self.stride), self.n1, relu=True)
+        y = _norm(_conv13(x, self.w1, n, k, self.stride), self.n1, relu=True, valid=real * k_out)
         if self.ws is None:
             s = x
         else:
             xs = x if self.stride == 1 else x.view(n, k, -1)[:, ::self.stride].reshape(n * k_out, -1)
             s = torch.addmm(self.bs, xs, self.ws)
-        return _norm(_conv13(y, self.w2, n, k_out, 1), self.n2, relu=True, residual=s), k_out
+        return _norm(_conv13(y, self.w2, n, k_out, 1), self.n2, relu=True, residual=s, valid=real * k_out), k_out
 
 
 class FastNMNet:
@@ -245,12 +251,15 @@ class FastNMNet:
     @torch.inference_mode()
     def __call__(self, corr: torch.Tensor, neighbors: torch.Tensor) -> torch.Tensor:
         """corr (N,4) float32, neighbors (N,k) int64 (itself first) -> logits (N,)."""
-        n, k = neighbors.shape
+        real, k = neighbors.shape
         f = _norm(corr @ self.we, self.ne, relu=True).to(self.dtype)  # (N, C): the (1,4) embedding is a linear map
+        n = real if self.dtype == self.we.dtype else -(-real // PAD) * PAD
+        if n > real:  # padding correspondences (rows of the first one's features), never counted by the norms
+            neighbors = torch.cat([neighbors, neighbors.new_zeros(n - real, k)])
         x = f[neighbors.reshape(-1)]  # grouping: (N*k, C)
         for blk in self.blocks:
-            x, k = blk(x, n, k)
+            x, k = blk(x, n, k, real)
         if k != 1:
             x = x.view(n, k, -1).mean(1)
-        h = _norm((x @ self.wh).to(self.we.dtype), self.nh, relu=True)
-        return torch.addmm(self.bo, h, self.wo)[:, 0]
+        h = _norm((x @ self.wh).to(self.we.dtype), self.nh, relu=True, valid=real)
+        return torch.addmm(self.bo, h, self.wo)[:real, 0]

@@ -115,3 +115,19 @@ def test_precision_choices():
     assert precision_note("auto").startswith("bfloat16 (auto" if native_bf16() else "float32 (auto")
     with pytest.raises(ValueError, match="'float16'; use one of auto, float32, bfloat16"):
         resolve_precision("float16")
+
+
+def test_bfloat16_padding_leaves_the_logits_unchanged(monkeypatch):
+    """bfloat16 pads N to a multiple of PAD (oneDNN builds a GEMM kernel for every new shape, ~9 ms per
+    frame otherwise); the padding rows are never counted by the normalisations, so the logits equal
+    those of the unpadded input (counting them would shift the moments by ~2 % here)."""
+    import nmnet_ros.model_fast as mf
+
+    x, k0, a0, k1, a1 = inputs(1000, seed=3)  # padded to 1024
+    nb = torch.from_numpy(compatibility_neighbors(k0, a0, k1, a1))
+    model = mf.FastNMNet(load_model(), torch.bfloat16)
+    padded = model(x, nb)
+    monkeypatch.setattr(mf, "PAD", 1)
+    unpadded = model(x, nb)
+    assert padded.shape == unpadded.shape == (1000,)
+    torch.testing.assert_close(padded, unpadded, atol=1e-3, rtol=0)
