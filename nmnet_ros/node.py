@@ -95,6 +95,12 @@ def frontend_config(p: dict) -> dict:
     }
 
 
+def repeat_after(logged: int, first: float, cap: float = 600.0) -> float:
+    """Seconds before a warning about a lasting condition repeats, once it was logged ``logged`` times:
+    first, 2 x first, 4 x first, ... at most ``cap``, so an idle camera does not fill the log."""
+    return min(first * 2.0 ** max(logged - 1, 0), cap)
+
+
 def check_choices(p: dict) -> None:
     """ValueError for a string parameter outside its choices (rclpy checks only types and ranges)."""
     for name, (_, _, rng) in PARAMS.items():
@@ -168,6 +174,7 @@ class NMNetNode(Node):
         self._last_stamp: float | None = None
         self._size: tuple[int, int] | None = None
         self._warned: dict[str, float] = {}
+        self._repeats: dict[str, int] = {}  # times a lasting condition (no_publisher, no_frames) was logged
 
         self._image_type, self._image_topic = (CompressedImage, "image/compressed") if p["use_compressed"] else (Image, "image")
         self._image_sub = None
@@ -236,21 +243,33 @@ class NMNetNode(Node):
         if self._unpublished_s >= 10:
             where = where_are_the_images(self.get_topic_names_and_types(), {topic, self.pub_debug.topic_name},
                                          self._image_type is CompressedImage)
-            self._warn("no_publisher", f"no publisher on {topic} for {self._unpublished_s} s: {where}", period=60.0)
+            self._warn("no_publisher", f"no publisher on {topic} for {self._unpublished_s} s: {where}", period=60.0, lasting=True)
+        elif not self._unpublished_s:
+            self._repeats.pop("no_publisher", None)
         self._silent_s = self._silent_s + 1 if offers and self.stats.received == self._received_before else 0
         self._received_before = self.stats.received
         if self._silent_s >= 5:
             self._warn("no_frames", f"{len(offers)} publisher(s) on {topic} but no frame for {self._silent_s} s: "
-                                    + silence_advice(self.image_reliable, offers), period=30.0)
+                                    + silence_advice(self.image_reliable, offers), period=30.0, lasting=True)
+        elif not self._silent_s:
+            self._repeats.pop("no_frames", None)
         self._publish_diagnostics()
 
-    def _warn(self, key: str, text: str, period: float = 5.0) -> None:
-        """Warning counted per kind in diagnostics; the same message (numbers aside) at most once per period."""
+    def _warn(self, key: str, text: str, period: float = 5.0, lasting: bool = False) -> None:
+        """Warning counted per kind in diagnostics; the same message (numbers aside) at most once per period.
+
+        ``lasting``: a condition that may hold for hours (an idle camera): the period doubles with every
+        repeat (:func:`repeat_after`) until the caller clears ``_repeats[key]``.
+        """
         self.stats.warnings[key] = self.stats.warnings.get(key, 0) + 1
         now = time.monotonic()
         throttle = key + re.sub(r"[\d.]+", "#", text)
+        if lasting:
+            period = repeat_after(self._repeats.get(key, 0), period)
         if now - self._warned.get(throttle, -1e9) >= period:
             self._warned[throttle] = now
+            if lasting:
+                self._repeats[key] = self._repeats.get(key, 0) + 1
             self.get_logger().warning(f"{text} [{key}: {self.stats.warnings[key]} so far]")
 
     def _on_info(self, msg: CameraInfo) -> None:

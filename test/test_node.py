@@ -628,3 +628,41 @@ def test_the_package_installs_launch_config_and_ament_index(tmp_path):
             "share/ament_index/resource_index/packages/nmnet_ros"} <= share
     entry = next(zipfile.ZipFile(wheel).read(n).decode() for n in names if n.endswith("entry_points.txt"))
     assert "nmnet_node = nmnet_ros.node:main" in entry and "nmnet = nmnet_ros.cli:main" in entry
+
+
+def test_lasting_warnings_repeat_ever_less_often_until_cleared(ros, monkeypatch):
+    """An idle camera (no_publisher / no_frames for hours) does not fill the log: each repeat waits twice as
+    long as the one before, up to 10 min, and the first period is back once the condition has cleared.
+    The node runs in this process with a stepped clock; its logger records what it would print."""
+    from nmnet_ros import node as nm
+
+    assert [nm.repeat_after(n, 30.0) for n in range(8)] == [30, 30, 60, 120, 240, 480, 600, 600]
+    clock = [1000.0]
+    monkeypatch.setattr(nm.time, "monotonic", lambda: clock[0])
+    node = nm.NMNetNode()
+    logged: list[str] = []
+
+    class Recorder:
+        def warning(self, text: str) -> None:
+            logged.append(text)
+
+    monkeypatch.setattr(node, "get_logger", lambda: Recorder())
+    try:
+        def idle(seconds: int) -> list[float]:
+            """The node's once-a-second check of a silent camera, for ``seconds``; when it logged."""
+            start, at = len(logged), []
+            for _ in range(seconds):
+                clock[0] += 1.0
+                node._warn("no_frames", "1 publisher(s) on /image but no frame for 9 s: ...", period=30.0, lasting=True)
+                if len(logged) > start + len(at):
+                    at.append(clock[0])
+            return at
+
+        t0 = clock[0]
+        assert [t - t0 for t in idle(500)] == [1, 31, 91, 211, 451]  # gaps 30, 60, 120, 240
+        assert node.stats.warnings["no_frames"] == 500  # every second still counts in diagnostics
+        node._repeats.pop("no_frames")  # what _tick does once frames arrive again
+        t1 = clock[0]
+        assert [t - t1 for t in idle(100)] == [1, 31, 91]  # a new episode: at once, then 30 s, 60 s again
+    finally:
+        node.destroy_node()
