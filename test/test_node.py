@@ -665,4 +665,5 @@ def test_lasting_warnings_repeat_ever_less_often_until_cleared(ros, monkeypatch)
         t1 = clock[0]
         assert [t - t1 for t in idle(100)] == [1, 31, 91]  # a new episode: at once, then 30 s, 60 s again
     finally:
+        node.stop()
         node.destroy_node()
