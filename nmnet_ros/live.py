@@ -125,7 +125,7 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
                 pub_info.publish(deserialize_message(bytes(ts.serialize_cdr(first_info.msg, first_info.msgtype)),
                                                      _rclpy_type(first_info.msgtype)))
                 rclpy.spin_once(player, timeout_sec=0.2)
-        first_ns, t_start = None, time.monotonic()
+        first_ns, t_start, last_ns = None, time.monotonic(), None  # last_ns: the stamp of the last image published
         for m in reader.messages({t for t in (img_t, info_t) if t}):
             first_ns = m.log_time_ns if first_ns is None else first_ns
             due = t_start + (m.log_time_ns - first_ns) / 1e9 / rate
@@ -135,7 +135,8 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
             if m.topic == img_t:
                 if camera:
                     pub_info.publish(camera_info_msg(camera, msg.header))
-                sent_at[msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec] = time.monotonic()
+                last_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                sent_at[last_ns] = time.monotonic()
                 pub_img.publish(msg)
                 stats["published"] += 1
             else:
@@ -143,7 +144,6 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
         # the camera is done: no publisher left, so the node does not take the drain for a stalled camera (no_frames).
         # Not before the last frame has arrived: a writer destroyed right after publishing a large frame can take the
         # frame with it (the last of 6 raw 1.2 MB frames went missing in 3 of 26 runs); its result shows it arrived.
-        last_ns = max(sent_at, default=None)
         t_last = time.monotonic() + 3.0  # < the node's 5 s no_frames delay; a frame the node dropped never answers
         while last_ns is not None and last_ns not in answered and time.monotonic() < t_last:
             rclpy.spin_once(player, timeout_sec=0.05)
