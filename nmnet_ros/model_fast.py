@@ -157,6 +157,9 @@ def _norm_kernel(x, valid, a, b, eps, res, relu):  # pragma: no cover - compiled
                 _put(x, r, c, v if v > 0 or not relu else 0.0)
 
 
+_NO_RES = np.zeros((0, 0), np.float32)  # "no residual" for every activation dtype (the kernel only reads its shape)
+
+
 def _array(t: torch.Tensor) -> np.ndarray:
     """A tensor's memory as numpy (bfloat16 as its uint16 bits, which the kernel reads)."""
     return t.view(torch.uint16).numpy() if t.dtype == torch.bfloat16 else t.numpy()
@@ -166,7 +169,7 @@ def _norm(x: torch.Tensor, norm: Norm, relu: bool, residual: torch.Tensor | None
     """InstanceNorm over the rows (all correspondences and neighbours; the first ``valid`` when the
     rest is padding) + folded BatchNorm (+ residual) (+ ReLU), in place on x (a fresh GEMM output)."""
     a, b, eps = norm
-    res = _array(residual.contiguous()) if residual is not None else _array(x[:0])
+    res = _array(residual.contiguous()) if residual is not None else _NO_RES
     launch(_norm_kernel, _array(x), len(x) if valid is None else valid, a.numpy(), b.numpy(), eps, res, relu)
     return x
 
