@@ -38,18 +38,23 @@ PRECISIONS = ("auto", "float32", "bfloat16")
 PAD = 64
 
 
-@functools.cache
-def native_bf16() -> bool:
-    """Whether this CPU has bfloat16 dot products (x86 AVX512-BF16 / AMX-BF16, Arm BF16): only there is
-    a bfloat16 GEMM faster than float32 (elsewhere it is emulated)."""
-    try:
-        info = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return False
-    words = set(info.split())
-    if platform.machine().lower() in ("aarch64", "arm64"):
+def cpu_has_bf16(cpuinfo: str, machine: str) -> bool:
+    """Whether a CPU, by its /proc/cpuinfo text and ``platform.machine()``, has bfloat16 dot products
+    (x86 AVX512-BF16 / AMX-BF16, Arm BF16): only there is a bfloat16 GEMM faster than float32 (elsewhere
+    it is emulated)."""
+    words = set(cpuinfo.split())
+    if machine.lower() in ("aarch64", "arm64"):
         return "bf16" in words
     return bool(words & {"avx512_bf16", "amx_bf16"})
+
+
+@functools.cache
+def native_bf16() -> bool:
+    """:func:`cpu_has_bf16` for this machine (False where there is no /proc/cpuinfo)."""
+    try:
+        return cpu_has_bf16(Path("/proc/cpuinfo").read_text(), platform.machine())
+    except OSError:
+        return False
 
 
 def resolve_precision(precision: str) -> torch.dtype:

@@ -107,6 +107,17 @@ def test_bfloat16_normalisation_rounds_as_torch():
         assert relu == bool((out >= 0).all())
 
 
+def test_bfloat16_is_native_only_with_the_cpu_flags():
+    from nmnet_ros.model_fast import cpu_has_bf16
+
+    x86 = "flags\t\t: fpu sse2 avx2 avx512f avx512bw avx512_vnni {}\nbugs\t\t: spectre_v1\n"
+    assert cpu_has_bf16(x86.format("avx512_bf16"), "x86_64") and cpu_has_bf16(x86.format("amx_bf16 amx_tile"), "x86_64")
+    assert not cpu_has_bf16(x86.format(""), "x86_64")  # AVX-512 alone: bfloat16 is emulated
+    arm = "Features\t: fp asimd sve {}\n"
+    assert cpu_has_bf16(arm.format("bf16 i8mm"), "aarch64") and not cpu_has_bf16(arm.format("i8mm"), "aarch64")
+    assert not cpu_has_bf16(arm.format("svebf16"), "aarch64") and not cpu_has_bf16("", "x86_64")
+
+
 def test_precision_choices():
     from nmnet_ros.model_fast import native_bf16, precision_note, resolve_precision
 
