@@ -17,6 +17,7 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
@@ -95,10 +96,14 @@ def frontend_config(p: dict) -> dict:
     }
 
 
-def repeat_after(logged: int, first: float, cap: float = 600.0) -> float:
-    """Seconds before a warning about a lasting condition repeats, once it was logged ``logged`` times:
-    first, 2 x first, 4 x first, ... at most ``cap``, so an idle camera does not fill the log."""
-    return min(first * 2.0 ** max(logged - 1, 0), cap)
+def lasting_warning_due(seconds: int, first: int, cap: int = 600) -> bool:
+    """Whether a warning about a condition that has lasted ``seconds`` (0: it just began) is logged now:
+    at once, then after ``first``, 2 x ``first``, 4 x ``first``, ... seconds, at most ``cap`` apart, so an
+    idle camera does not fill the log."""
+    at, gap = 0, first
+    while at < seconds:
+        at, gap = at + gap, min(2 * gap, cap)
+    return at == seconds
 
 
 def check_choices(p: dict) -> None:
@@ -174,7 +179,6 @@ class NMNetNode(Node):
         self._last_stamp: float | None = None
         self._size: tuple[int, int] | None = None
         self._warned: dict[str, float] = {}
-        self._repeats: dict[str, int] = {}  # times a lasting condition (no_publisher, no_frames) was logged
 
         self._image_type, self._image_topic = (CompressedImage, "image/compressed") if p["use_compressed"] else (Image, "image")
         self._image_sub = None
@@ -241,36 +245,33 @@ class NMNetNode(Node):
                                    + ("reliable" if self.image_reliable else "best effort"))
         self._unpublished_s = 0 if offers else self._unpublished_s + 1
         if self._unpublished_s >= 10:
-            where = where_are_the_images(self.get_topic_names_and_types(), {topic, self.pub_debug.topic_name},
-                                         self._image_type is CompressedImage)
-            self._warn("no_publisher", f"no publisher on {topic} for {self._unpublished_s} s: {where}", period=60.0, lasting=True)
-        elif not self._unpublished_s:
-            self._repeats.pop("no_publisher", None)
+            self._warn_lasting("no_publisher", self._unpublished_s - 10, 60, lambda: (
+                f"no publisher on {topic} for {self._unpublished_s} s: " + where_are_the_images(
+                    self.get_topic_names_and_types(), {topic, self.pub_debug.topic_name}, self._image_type is CompressedImage)))
         self._silent_s = self._silent_s + 1 if offers and self.stats.received == self._received_before else 0
         self._received_before = self.stats.received
         if self._silent_s >= 5:
-            self._warn("no_frames", f"{len(offers)} publisher(s) on {topic} but no frame for {self._silent_s} s: "
-                                    + silence_advice(self.image_reliable, offers), period=30.0, lasting=True)
-        elif not self._silent_s:
-            self._repeats.pop("no_frames", None)
+            self._warn_lasting("no_frames", self._silent_s - 5, 30, lambda: (
+                f"{len(offers)} publisher(s) on {topic} but no frame for {self._silent_s} s: "
+                + silence_advice(self.image_reliable, offers)))
         self._publish_diagnostics()
 
-    def _warn(self, key: str, text: str, period: float = 5.0, lasting: bool = False) -> None:
-        """Warning counted per kind in diagnostics; the same message (numbers aside) at most once per period.
-
-        ``lasting``: a condition that may hold for hours (an idle camera): the period doubles with every
-        repeat (:func:`repeat_after`) until the caller clears ``_repeats[key]``.
-        """
+    def _warn(self, key: str, text: str, period: float = 5.0) -> None:
+        """Warning counted per kind in diagnostics; the same message (numbers aside) at most once per period."""
         self.stats.warnings[key] = self.stats.warnings.get(key, 0) + 1
         now = time.monotonic()
         throttle = key + re.sub(r"[\d.]+", "#", text)
-        if lasting:
-            period = repeat_after(self._repeats.get(key, 0), period)
         if now - self._warned.get(throttle, -1e9) >= period:
             self._warned[throttle] = now
-            if lasting:
-                self._repeats[key] = self._repeats.get(key, 0) + 1
             self.get_logger().warning(f"{text} [{key}: {self.stats.warnings[key]} so far]")
+
+    def _warn_lasting(self, key: str, seconds: int, first: int, text: Callable[[], str]) -> None:
+        """A condition that has lasted ``seconds`` (0: it just began), checked once a second: counted every
+        time, logged when :func:`lasting_warning_due`; ``text`` (which may query the graph) is built only then."""
+        if lasting_warning_due(seconds, first):
+            self._warn(key, text(), period=0.0)
+        else:
+            self.stats.warnings[key] = self.stats.warnings.get(key, 0) + 1
 
     def _on_info(self, msg: CameraInfo) -> None:
         try:

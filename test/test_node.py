@@ -632,13 +632,13 @@ def test_the_package_installs_launch_config_and_ament_index(tmp_path):
 
 def test_lasting_warnings_repeat_ever_less_often_until_cleared(ros, monkeypatch):
     """An idle camera (no_publisher / no_frames for hours) does not fill the log: each repeat waits twice as
-    long as the one before, up to 10 min, and the first period is back once the condition has cleared.
-    The node runs in this process with a stepped clock; its logger records what it would print."""
+    long as the one before, up to 10 min, and a new episode (the condition cleared, then back) logs at once.
+    The node runs in this process, driven as its once-a-second check drives it; its logger records what it
+    would print. The message (no_publisher's queries the ROS graph) is built only when it is logged."""
     from nmnet_ros import node as nm
 
-    assert [nm.repeat_after(n, 30.0) for n in range(8)] == [30, 30, 60, 120, 240, 480, 600, 600]
-    clock = [1000.0]
-    monkeypatch.setattr(nm.time, "monotonic", lambda: clock[0])
+    due = [s for s in range(2000) if nm.lasting_warning_due(s, 30)]
+    assert due == [0, 30, 90, 210, 450, 930, 1530]  # gaps 30, 60, 120, 240, 480, then 600
     node = nm.NMNetNode()
     logged: list[str] = []
 
@@ -647,23 +647,27 @@ def test_lasting_warnings_repeat_ever_less_often_until_cleared(ros, monkeypatch)
             logged.append(text)
 
     monkeypatch.setattr(node, "get_logger", lambda: Recorder())
+    built = [0]
+
+    def text() -> str:
+        built[0] += 1
+        return "1 publisher(s) on /image but no frame for 9 s: ..."
+
     try:
-        def idle(seconds: int) -> list[float]:
-            """The node's once-a-second check of a silent camera, for ``seconds``; when it logged."""
-            start, at = len(logged), []
-            for _ in range(seconds):
-                clock[0] += 1.0
-                node._warn("no_frames", "1 publisher(s) on /image but no frame for 9 s: ...", period=30.0, lasting=True)
-                if len(logged) > start + len(at):
-                    at.append(clock[0])
+        def idle(seconds: int) -> list[int]:
+            """An episode of ``seconds`` checks; the seconds into it at which the node logged."""
+            at = []
+            for s in range(seconds):
+                before = len(logged)
+                node._warn_lasting("no_frames", s, 30, text)
+                if len(logged) > before:
+                    at.append(s)
             return at
 
-        t0 = clock[0]
-        assert [t - t0 for t in idle(500)] == [1, 31, 91, 211, 451]  # gaps 30, 60, 120, 240
+        assert idle(500) == [0, 30, 90, 210, 450]
         assert node.stats.warnings["no_frames"] == 500  # every second still counts in diagnostics
-        node._repeats.pop("no_frames")  # what _tick does once frames arrive again
-        t1 = clock[0]
-        assert [t - t1 for t in idle(100)] == [1, 31, 91]  # a new episode: at once, then 30 s, 60 s again
+        assert built[0] == len(logged) == 5
+        assert idle(100) == [0, 30, 90]  # a new episode: at once, then 30 s, 60 s again
     finally:
         node.stop()
         node.destroy_node()
