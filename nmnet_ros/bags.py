@@ -10,11 +10,13 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import get_types_from_msg
+from rosbags.typesys.store import Typestore
 
 from .caminfo import camera_from_info, info_fields
 from .datasets import Sequence, quat_to_rot
@@ -31,7 +33,7 @@ class BagError(ValueError):
     """A bag that cannot be read or written as asked."""
 
 
-def typestore(ros1: bool = False):
+def typestore(ros1: bool = False) -> Typestore:
     """The message types of ROS 2 Kilted (or ROS 1 Noetic for .bag files, plus tf2_msgs/TFMessage)."""
     if not ros1:
         return get_typestore(Stores.ROS2_KILTED)
@@ -314,11 +316,12 @@ def pick_topic(topics: dict[str, str], types: tuple[str, ...], what: str, wanted
     raise BagError(f"several {what} topics ({', '.join(sorted(found))}); choose one with --{what}-topic. Bag topics: {listing}")
 
 
-def msg_time(msg) -> float:
+def msg_time(msg: Any) -> float:
+    """A message's header stamp in seconds."""
     return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
-def pose_from_msg(msg) -> np.ndarray:
+def pose_from_msg(msg: Any) -> np.ndarray:
     """PoseStamped -> 4x4."""
     p, o = msg.pose.position, msg.pose.orientation
     T = np.eye(4)
@@ -327,7 +330,7 @@ def pose_from_msg(msg) -> np.ndarray:
     return T
 
 
-def decode_image_msg(msg, msgtype: str) -> np.ndarray:
+def decode_image_msg(msg: Any, msgtype: str) -> np.ndarray:
     """Image/CompressedImage (rosbags message) -> array; ImageError when unusable."""
     if msgtype.endswith("CompressedImage"):
         return decode_compressed(msg.format, msg.data)

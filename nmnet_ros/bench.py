@@ -14,16 +14,22 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from .neighbors import compatibility_neighbors, compatibility_neighbors_loop, spatial_neighbors
 
+if TYPE_CHECKING:  # the network and OpenCV load when a benchmark runs, not on import
+    from .geometry import Camera
+    from .pipeline import Frontend
 
-def timeit(fn, repeat: int) -> list[float]:
+
+def timeit(fn: Callable[[], object], repeat: int) -> list[float]:
     """Milliseconds of each of ``repeat`` calls after one warm-up call."""
     fn()
     out = []
@@ -96,7 +102,7 @@ def _stages(det, model, magsac, cam, imgs: list[np.ndarray], jpegs: list[bytes])
     return st, feats
 
 
-def pipelined_hz(frontend, imgs: list[np.ndarray], threads: int = 1) -> float:
+def pipelined_hz(frontend: Frontend, imgs: list[np.ndarray], threads: int = 1) -> float:
     """Frames per second of the node's two-stage schedule: detection and matching of frame t+1 on a
     second thread while frame t is scored and posed, ``threads`` CPU threads per stage (nmnet_node's default)."""
     import queue
@@ -131,7 +137,7 @@ def pipelined_hz(frontend, imgs: list[np.ndarray], threads: int = 1) -> float:
     return hz
 
 
-def bench_pipeline(frames: list[np.ndarray], camera, sizes: tuple[int, ...] = (1000, 2000), reference: bool = True) -> dict:
+def bench_pipeline(frames: list[np.ndarray], camera: Camera, sizes: tuple[int, ...] = (1000, 2000), reference: bool = True) -> dict:
     """Per-stage latencies (ms) of the NM-Net front end, its pipelined rate, the kornia/reference-network
     costs and the OpenCV baseline (SIFT 2000 + ratio + MAGSAC++), all on the same frames."""
     import cv2

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .datasets import Sequence
-from .features import Features
+from .features import Detector, Features
 
 
 def default_cache_dir() -> Path:
@@ -20,7 +20,7 @@ def default_cache_dir() -> Path:
 class FeatureCache:
     """Computes features of a sequence frame once and reuses them from ``root``."""
 
-    def __init__(self, detector, root: Path | None = None) -> None:
+    def __init__(self, detector: Detector, root: Path | None = None) -> None:
         self.detector = detector
         self.root = Path(root) if root is not None else default_cache_dir()
         self._memo: dict[Path, Features] = {}  # one object per frame, shared by all its pairs

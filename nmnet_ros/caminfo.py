@@ -8,6 +8,8 @@ image_geometry reads them: K and D describe the full-resolution sensor, and an i
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from .geometry import Camera, CameraError
@@ -19,7 +21,7 @@ def _field(msg, name: str):
     return getattr(msg, name.upper(), None) if value is None else value
 
 
-def camera_from_info(msg, rectified: bool = False) -> Camera:
+def camera_from_info(msg: Any, rectified: bool = False) -> Camera:
     """The camera of the images a CameraInfo message belongs to; CameraError when K or D is unusable.
 
     ``rectified``: the images are image_proc's rectified ones (``image_rect``), whose camera is P's left

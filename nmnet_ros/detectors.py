@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .fast_hessaff import FastHessianAffine
-from .features import HessianAffine, SiftSimilarity
+from .features import Detector, HessianAffine, SiftSimilarity
 
 DETECTORS: dict[str, type] = {
     "hessian-affine-fast": FastHessianAffine,  # batched OpenCV/torch Hessian-affine (default; NM-Net fine-tuned on it last)
@@ -13,7 +13,7 @@ DETECTORS: dict[str, type] = {
 DEFAULT_DETECTOR = "hessian-affine-fast"  # what the node runs, and so what `nmnet train` trains on unless told
 
 
-def make_detector(name: str, config: dict | None = None):
+def make_detector(name: str, config: dict | None = None) -> Detector:
     """The named detector, or a ValueError listing the choices."""
     if name not in DETECTORS:
         raise ValueError(f"unknown detector {name!r}; use one of {', '.join(DETECTORS)}")

@@ -9,6 +9,7 @@ NM-Net's compatibility score is built from (paper Eq. 3).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,9 +53,12 @@ class Features:
                 "descriptors": self.descriptors, "responses": self.responses}
 
     @classmethod
-    def from_npz(cls, data) -> Features:
+    def from_npz(cls, data: Mapping[str, np.ndarray]) -> Features:
         """Inverse of :meth:`to_npz`."""
         return cls(*(np.asarray(data[k], np.float32) for k in ("keypoints", "frames", "descriptors", "responses")))
+
+
+Detector = Callable[[np.ndarray], Features]  # image -> features: every frame source (see detectors.py)
 
 
 def to_gray_float(image: np.ndarray) -> np.ndarray:

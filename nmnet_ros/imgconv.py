@@ -7,10 +7,13 @@ wrong and what the sender should do.
 
 from __future__ import annotations
 
+from array import array
+
 import cv2
 import numpy as np
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")  # the messages frames come in
+Buffer = bytes | bytearray | memoryview | array | np.ndarray  # a message's data: array('B') from rclpy, uint8 arrays from rosbags
 
 # encoding -> (channels, dtype, conversion to the pipeline's BGR/mono); names as sensor_msgs/image_encodings.h
 ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
@@ -41,7 +44,7 @@ class ImageError(ValueError):
     """An image message that cannot be turned into pixels."""
 
 
-def image_to_array(height: int, width: int, encoding: str, step: int, data, is_bigendian: int = 0) -> np.ndarray:
+def image_to_array(height: int, width: int, encoding: str, step: int, data: Buffer, is_bigendian: int = 0) -> np.ndarray:
     """Image message fields -> (H,W) or (H,W,3) array (BGR for colour), zero-copy where possible."""
     enc = encoding.lower()
     if enc not in ENCODINGS:
@@ -68,7 +71,7 @@ def image_to_array(height: int, width: int, encoding: str, step: int, data, is_b
     return arr
 
 
-def decode_compressed(fmt: str, data) -> np.ndarray:
+def decode_compressed(fmt: str, data: Buffer) -> np.ndarray:
     """CompressedImage (jpeg/png) -> array as cv2.imdecode gives it (mono or BGR)."""
     buf = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.view(np.uint8).ravel()
     if buf.size == 0:

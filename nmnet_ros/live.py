@@ -13,7 +13,9 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -35,7 +37,7 @@ def _rclpy_type(msgtype: str):
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
-def camera_info_msg(camera: Camera, header=None):
+def camera_info_msg(camera: Camera, header: Any = None) -> Any:
     """An rclpy CameraInfo of ``camera`` with the image's header (none: an empty one)."""
     from sensor_msgs.msg import CameraInfo
 
@@ -55,7 +57,7 @@ def live_env() -> dict[str, str]:
     return env
 
 
-def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log=print,
+def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log: Callable[[str], None] = print,
               camera: Camera | None = None) -> dict:
     """Play, record, stop the node; returns counts and latencies.
 

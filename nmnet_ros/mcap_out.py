@@ -7,6 +7,7 @@ which callers run in ``finally`` so an interrupted run still leaves a valid, ind
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from mcap.writer import CompressionType, Writer
@@ -14,6 +15,9 @@ from mcap.writer import CompressionType, Writer
 from .bags import typestore
 from .imgconv import array_to_image_fields, matches_to_cloud_fields
 from .posemsg import relative_pose_of_current
+
+if TYPE_CHECKING:  # the front end (and its network) is not needed to write a bag
+    from .pipeline import FrameResult
 
 
 class McapOutput:
@@ -41,7 +45,7 @@ class McapOutput:
             self._channels[topic] = self._writer.register_channel(topic, "cdr", self._schemas[msgtype])
         return self._channels[topic]
 
-    def write(self, topic: str, msgtype: str, msg, t_ns: int) -> None:
+    def write(self, topic: str, msgtype: str, msg: Any, t_ns: int) -> None:
         """Serialise and append one message."""
         data = self.ts.serialize_cdr(msg, msgtype)
         self._writer.add_message(self._channel(topic, msgtype), log_time=t_ns, data=bytes(data), publish_time=t_ns)
@@ -58,7 +62,7 @@ class McapOutput:
         return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((stamp - sec) * 1e9)) % 10**9),
                                         frame_id=frame_id)
 
-    def write_result(self, result, stamp: float, frame_id: str = "camera", debug: np.ndarray | None = None,
+    def write_result(self, result: FrameResult, stamp: float, frame_id: str = "camera", debug: np.ndarray | None = None,
                      prefix: str = "/nmnet_node") -> None:
         """A FrameResult as ``{prefix}/matches`` (PointCloud2) and ``{prefix}/relative_pose``."""
         T = self.ts.types

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -10,6 +11,9 @@ from .cache import FeatureCache
 from .datasets import LABEL_THRESHOLD, Sequence, epipolar_labels, has_baseline
 from .features import Features
 from .matching import Matches, match_descriptors
+
+if TYPE_CHECKING:
+    from .selectors import Correspondences
 
 
 @dataclass
@@ -87,7 +91,7 @@ def parse_seq_spec(spec: str) -> tuple[str, range | None]:
     return spec, None
 
 
-def to_correspondences(pair: PairData, with_labels: bool = True):
+def to_correspondences(pair: PairData, with_labels: bool = True) -> Correspondences:
     """The selectors' view of a pair (imported lazily: selectors pull in the network)."""
     from .selectors import Correspondences
 

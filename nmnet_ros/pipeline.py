@@ -20,7 +20,7 @@ import numpy as np
 
 from .detectors import DEFAULT_DETECTOR, make_detector
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
-from .features import Features
+from .features import Detector, Features
 from .geometry import Camera, PoseEstimate
 from .matching import Matches, match_descriptors
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
@@ -50,7 +50,7 @@ SELECTOR_CONFIG = ("score_threshold", "k", "threshold_px", "refine_iterations", 
 SELECTOR_KEYS = ("selector", "weights", *SELECTOR_CONFIG)
 
 
-def _detector(c: dict) -> Callable[[np.ndarray], Features]:
+def _detector(c: dict) -> Detector:
     return make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]})
 
 

@@ -13,6 +13,7 @@ import json
 import signal
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -88,7 +89,8 @@ class Run:
 
 def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, gt_file: Path | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
-                log=print, camera: Camera | None = None, rectified: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
+                log: Callable[[str], None] = print, camera: Camera | None = None,
+                rectified: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
     """One pass of the front end over a bag; returns the run, the frame count and the last good image.
 
     ``camera``: the calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.

@@ -17,6 +17,7 @@ import argparse
 import json
 import subprocess
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -63,7 +64,7 @@ NEIGHBORS = {"nmnet": "compatibility", "nmnet-sp": "spatial"}
 
 
 def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min_inliers: int,
-               log=print, label_threshold: float = LABEL_THRESHOLD) -> list[PairData]:
+               log: Callable[[str], None] = print, label_threshold: float = LABEL_THRESHOLD) -> list[PairData]:
     """Labelled pairs from 'PATH[:a-b]' specs, dropping pairs with almost no inliers."""
     out = []
     for spec in specs:
@@ -242,7 +243,7 @@ def validate(model: NMNet, pairs: list[PairData], neighbor_kind: str, threshold:
     return out
 
 
-def calibrate(out_dir: Path, val_pairs: list[PairData], kind: str, log=print) -> dict:
+def calibrate(out_dir: Path, val_pairs: list[PairData], kind: str, log: Callable[[str], None] = print) -> dict:
     """Store in best.pt the score threshold that maximises validation F; returns its metrics."""
     ck = torch.load(out_dir / "best.pt", map_location="cpu", weights_only=False)
     model = NMNet(ck["config"])
@@ -278,7 +279,7 @@ def _init_model(path: Path, kind: str) -> NMNet:
 
 
 def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: dict | None = None,
-          resume: bool = False, cache_dir: Path | None = None, log=print) -> dict:
+          resume: bool = False, cache_dir: Path | None = None, log: Callable[[str], None] = print) -> dict:
     """Train; writes ``best.pt`` (by validation F), ``last.pt`` and ``history.json`` to out_dir."""
     c = {**DEFAULT_CONFIG, **(config or {})}
     if c["variant"] not in NEIGHBORS:
