@@ -138,6 +138,8 @@ class Frame:
 
 @dataclass
 class RawMessage:
+    """One message of a bag: its topic, type, deserialised message and log time."""
+
     topic: str
     msgtype: str
     msg: object

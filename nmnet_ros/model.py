@@ -42,6 +42,7 @@ class ResBlock(nn.Module):
         self.shortcut = nn.Conv2d(cin, cout, 1, stride=stride) if cout != cin else nn.Identity()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, C, N, k) -> (B, C', N, k / stride): two convolutions, each normalised, plus the shortcut."""
         y = self.norm2(self.conv2(self.norm1(self.conv1(x))))
         return torch.relu(y + self.shortcut(x))
 

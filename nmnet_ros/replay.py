@@ -69,6 +69,7 @@ class Run:
         self.seconds = 0.0
 
     def summary(self, frames: int, dropped: int = 0) -> dict:
+        """The summary JSON: counts, rate, median errors, pose AUCs, selections per frame, statuses."""
         e = np.array(self.errors) if self.errors else np.zeros((0, 2))
         aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
         matches = [len(r.k0) for r in self.results if r.status not in RESTARTS]
