@@ -9,8 +9,9 @@ NM-Net's compatibility score is built from (paper Eq. 3).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -58,7 +59,13 @@ class Features:
         return cls(*(np.asarray(data[k], np.float32) for k in ("keypoints", "frames", "descriptors", "responses")))
 
 
-Detector = Callable[[np.ndarray], Features]  # image -> features: every frame source (see detectors.py)
+class Detector(Protocol):
+    """What every frame source (detectors.py) is: image -> features, plus the settings key of on-disk caches."""
+
+    @property
+    def cache_key(self) -> str: ...
+
+    def __call__(self, image: np.ndarray) -> Features: ...
 
 
 def to_gray_float(image: np.ndarray) -> np.ndarray:
