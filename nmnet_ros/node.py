@@ -258,7 +258,7 @@ class NMNetNode(Node):
 
     def _warn(self, key: str, text: str, period: float = 5.0) -> None:
         """Warning counted per kind in diagnostics; the same message (numbers aside) at most once per period."""
-        self.stats.warnings[key] = self.stats.warnings.get(key, 0) + 1
+        self._count(key)
         now = time.monotonic()
         throttle = key + re.sub(r"[\d.]+", "#", text)
         if now - self._warned.get(throttle, -1e9) >= period:
@@ -271,7 +271,11 @@ class NMNetNode(Node):
         if lasting_warning_due(seconds, first):
             self._warn(key, text(), period=0.0)
         else:
-            self.stats.warnings[key] = self.stats.warnings.get(key, 0) + 1
+            self._count(key)
+
+    def _count(self, key: str) -> None:
+        """One more warning of this kind in diagnostics (``warn_<key>``)."""
+        self.stats.warnings[key] = self.stats.warnings.get(key, 0) + 1
 
     def _on_info(self, msg: CameraInfo) -> None:
         try:
