@@ -12,9 +12,10 @@ detector and the reference network on the same input; and in the same run the Op
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -102,17 +103,26 @@ def _stages(det, model, magsac, cam, imgs: list[np.ndarray], jpegs: list[bytes])
     return st, feats
 
 
+@contextlib.contextmanager
+def cpu_threads(n: int) -> Iterator[None]:
+    """torch's and OpenCV's thread counts set to ``n`` (numba's kernels follow torch's, see jit.py), restored after."""
+    import cv2
+
+    saved = torch.get_num_threads(), cv2.getNumThreads()
+    torch.set_num_threads(n)
+    cv2.setNumThreads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(saved[0])
+        cv2.setNumThreads(saved[1])
+
+
 def pipelined_hz(frontend: Frontend, imgs: list[np.ndarray], threads: int = 1) -> float:
     """Frames per second of the node's two-stage schedule: detection and matching of frame t+1 on a
     second thread while frame t is scored and posed, ``threads`` CPU threads per stage (nmnet_node's default)."""
     import queue
     import threading
-
-    import cv2
-
-    saved = torch.get_num_threads(), cv2.getNumThreads()
-    torch.set_num_threads(threads)
-    cv2.setNumThreads(threads)
 
     q: queue.Queue = queue.Queue(maxsize=1)
 
@@ -121,20 +131,18 @@ def pipelined_hz(frontend: Frontend, imgs: list[np.ndarray], threads: int = 1) -
             q.put(frontend.prepare(img))
         q.put(None)
 
-    frontend.reset()
-    t = time.perf_counter()
-    th = threading.Thread(target=produce)
-    th.start()
-    n, stamp = 0, 0.0
-    while (item := q.get()) is not None:
-        stamp += 0.1
-        frontend.process_prepared(item, stamp)
-        n += 1
-    th.join()
-    hz = n / (time.perf_counter() - t)
-    torch.set_num_threads(saved[0])
-    cv2.setNumThreads(saved[1])
-    return hz
+    with cpu_threads(threads):
+        frontend.reset()
+        t = time.perf_counter()
+        th = threading.Thread(target=produce)
+        th.start()
+        n, stamp = 0, 0.0
+        while (item := q.get()) is not None:
+            stamp += 0.1
+            frontend.process_prepared(item, stamp)
+            n += 1
+        th.join()
+        return n / (time.perf_counter() - t)
 
 
 def bench_pipeline(frames: list[np.ndarray], camera: Camera, sizes: tuple[int, ...] = (1000, 2000), reference: bool = True) -> dict:
@@ -219,10 +227,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", type=Path, default=None, help="write the numbers as JSON")
     p.add_argument("--pipeline", action="store_true", help="also time every pipeline stage on the sample bag's frames")
     p.add_argument("--frames", type=int, default=16, help="frames of the sample bag used with --pipeline")
+    p.add_argument("--threads", type=int, default=None,
+                   help="CPU threads of the serial timings (default: torch's); 1 = one node stage's budget")
 
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet bench``."""
+    if args.threads is None:
+        return _run(args)
+    if args.threads < 1:
+        raise ValueError(f"--threads must be a whole number >= 1, got {args.threads}")
+    with cpu_threads(args.threads):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     sizes = tuple(int(s) for s in args.sizes.split(","))
     print(f"torch threads: {torch.get_num_threads()}")
     res = {"neighbors": bench_neighbors(sizes, args.repeat)}

@@ -16,3 +16,24 @@ def test_pipeline_bench_reports_every_stage_and_the_baseline():
         assert row["end_to_end_hz"] > 0 and row["end_to_end_hz_match_stage2"] > 0
         assert row["baseline_hz"] > 0 and row["sift_detect_ms"] > 0
         assert row["total"]["median"] >= row["detect"]["median"]
+
+
+def test_bench_threads_option_sets_and_restores_the_thread_counts(capsys):
+    """`nmnet bench --threads N` times the serial stages on N threads (1: one node stage's budget) and leaves
+    the process as it was; a count below 1 is refused with the option named."""
+    import cv2
+    import torch
+
+    from nmnet_ros.bench import cpu_threads
+    from nmnet_ros.cli import main
+
+    before = torch.get_num_threads(), cv2.getNumThreads()
+    n = before[0] + 1  # differs from the counts before, so the restore is checked
+    with cpu_threads(n):
+        assert (torch.get_num_threads(), cv2.getNumThreads()) == (n, n)
+    assert (torch.get_num_threads(), cv2.getNumThreads()) == before
+    assert main(["bench", "--threads", "1", "--sizes", "200", "--repeat", "1"]) == 0
+    assert "torch threads: 1" in capsys.readouterr().out
+    assert (torch.get_num_threads(), cv2.getNumThreads()) == before
+    assert main(["bench", "--threads", "0"]) == 2
+    assert "--threads must be a whole number >= 1, got 0" in capsys.readouterr().err
