@@ -100,6 +100,8 @@ def lasting_warning_due(seconds: int, first: int, cap: int = 600) -> bool:
     """Whether a warning about a condition that has lasted ``seconds`` (0: it just began) is logged now:
     at once, then after ``first``, 2 x ``first``, 4 x ``first``, ... seconds, at most ``cap`` apart, so an
     idle camera does not fill the log."""
+    if first < 1 or cap < first:
+        raise ValueError(f"lasting warnings need 1 <= first <= cap seconds, got first={first}, cap={cap}")  # else: no end
     at, gap = 0, first
     while at < seconds:
         at, gap = at + gap, min(2 * gap, cap)

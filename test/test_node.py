@@ -639,6 +639,8 @@ def test_lasting_warnings_repeat_ever_less_often_until_cleared(ros, monkeypatch)
 
     due = [s for s in range(2000) if nm.lasting_warning_due(s, 30)]
     assert due == [0, 30, 90, 210, 450, 930, 1530]  # gaps 30, 60, 120, 240, 480, then 600
+    with pytest.raises(ValueError, match="first=0"):  # a zero first gap would never reach a later second
+        nm.lasting_warning_due(5, 0)
     node = nm.NMNetNode()
     logged: list[str] = []
 
