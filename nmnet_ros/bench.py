@@ -74,7 +74,8 @@ def _stages(det, model, magsac, cam, imgs: list[np.ndarray], jpegs: list[bytes])
     from .selectors import DEFAULT_CONFIG, Correspondences, classic_mask, nmnet_scores
 
     h, w = imgs[0].shape[:2]
-    st: dict[str, list[float]] = {k: [] for k in ("decode", "detect", "match", "neighbors", "nmnet", "pose", "total")}
+    st: dict[str, list[float]] = {k: [] for k in ("decode", "detect", "match", "neighbors", "nmnet", "pose", "total",
+                                                  "match_float32")}
     feats, prev = [], None
     for img, jpg in zip(imgs, jpegs, strict=True):
         t = time.perf_counter()
@@ -99,6 +100,10 @@ def _stages(det, model, magsac, cam, imgs: list[np.ndarray], jpegs: list[bytes])
             for k, v in zip(("decode", "detect", "match", "neighbors", "nmnet", "pose", "total"),
                             (t0 - t, t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, t5 - t), strict=True):
                 st[k].append(1000 * v)
+            # baseline: the same matching with the float32 GEMM (auto screens in bfloat16 where native)
+            t = time.perf_counter()
+            match_descriptors(prev.descriptors, f.descriptors, {"gemm": "float32"})
+            st["match_float32"].append(1000 * (time.perf_counter() - t))
         prev = f
     return st, feats
 
@@ -282,6 +287,10 @@ def _run(args: argparse.Namespace) -> int:
                 if "fast_nmnet_float32_ms" in r:
                     print(f"same process, {key}: fast NM-Net float32 {r['fast_nmnet_float32_ms']:.0f} ms vs bfloat16 "
                           f"{r['fast_nmnet_ms']:.0f} ms ({r['fast_nmnet_float32_ms'] / r['fast_nmnet_ms']:.2f}x)")
+        gemm = [f"{key} {r['match_float32']['median']:.1f} vs {r['match']['median']:.1f} ms "
+                f"({r['match_float32']['median'] / r['match']['median']:.2f}x)" for key, r in res["pipeline"].items()]
+        print("same process, matching with the float32 GEMM vs as run (auto: bfloat16 screen + float32 re-check where "
+              "native): " + ", ".join(gemm))
         sift = [f"{key.split('_')[0]} {r['sift_detect_ms']:.0f} ms" for key, r in res["pipeline"].items() if key.endswith("N2000")]
         print("\nOpenCV SIFT (2000 kp, similarity frames, --detector sift) detect+describe: " + ", ".join(sift))
     if args.json:

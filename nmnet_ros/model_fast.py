@@ -17,17 +17,13 @@ output to nearest even. Not exact: logits move by ~0.01-0.03 (median), ~0.1 % of
 
 from __future__ import annotations
 
-import functools
-import platform
-from pathlib import Path
-
 import numba
 import numpy as np
 import torch
-from llvmlite import ir
 from numba.core import types
-from numba.extending import intrinsic, overload
+from numba.extending import overload
 
+from .bf16 import bits_from_f32, f32_from_bits, native_bf16
 from .jit import launch
 from .model import NMNet, ResBlock
 
@@ -36,25 +32,6 @@ PRECISIONS = ("auto", "float32", "bfloat16")
 # bfloat16 pads N to a multiple of this: oneDNN builds (JITs) a GEMM kernel for every new shape, ~9 ms
 # per frame with a new N; padded, a stream of frames meets at most max_keypoints / PAD shapes
 PAD = 64
-
-
-def cpu_has_bf16(cpuinfo: str, machine: str) -> bool:
-    """Whether a CPU, by its /proc/cpuinfo text and ``platform.machine()``, has bfloat16 dot products
-    (x86 AVX512-BF16 / AMX-BF16, Arm BF16): only there is a bfloat16 GEMM faster than float32 (elsewhere
-    it is emulated)."""
-    words = set(cpuinfo.split())
-    if machine.lower() in ("aarch64", "arm64"):
-        return "bf16" in words
-    return bool(words & {"avx512_bf16", "amx_bf16"})
-
-
-@functools.cache
-def native_bf16() -> bool:
-    """:func:`cpu_has_bf16` for this machine (False where there is no /proc/cpuinfo)."""
-    try:
-        return cpu_has_bf16(Path("/proc/cpuinfo").read_text(), platform.machine())
-    except OSError:
-        return False
 
 
 def resolve_precision(precision: str) -> torch.dtype:
@@ -76,22 +53,6 @@ def precision_note(precision: str) -> str:
     return f"{dtype} (auto: this CPU has no native bfloat16)"
 
 
-@intrinsic
-def _f32_from_bits(typingctx, u):  # pragma: no cover - compiled
-    """The float32 whose bit pattern is the uint32 ``u``."""
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], ir.FloatType())
-    return types.float32(types.uint32), codegen
-
-
-@intrinsic
-def _bits_from_f32(typingctx, f):  # pragma: no cover - compiled
-    """The bit pattern of the float32 ``f`` as a uint32."""
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], ir.IntType(32))
-    return types.uint32(types.float32), codegen
-
-
 def _get(x, r, c):  # pragma: no cover - replaced by the overload below inside compiled kernels
     """x[r, c] as a float; bfloat16 arrives as its uint16 bits."""
 
@@ -103,7 +64,7 @@ def _put(x, r, c, v):  # pragma: no cover - replaced by the overload below insid
 @overload(_get)
 def _get_impl(x, r, c):  # pragma: no cover - compiled
     if x.dtype == types.uint16:
-        return lambda x, r, c: _f32_from_bits(np.uint32(x[r, c]) << np.uint32(16))
+        return lambda x, r, c: f32_from_bits(np.uint32(x[r, c]) << np.uint32(16))
     return lambda x, r, c: x[r, c]
 
 
@@ -111,7 +72,7 @@ def _get_impl(x, r, c):  # pragma: no cover - compiled
 def _put_impl(x, r, c, v):  # pragma: no cover - compiled
     if x.dtype == types.uint16:
         def put_bf16(x, r, c, v):
-            u = _bits_from_f32(np.float32(v))
+            u = bits_from_f32(np.float32(v))
             x[r, c] = np.uint16((u + np.uint32(0x7FFF) + ((u >> np.uint32(16)) & np.uint32(1))) >> np.uint32(16))
         return put_bf16
 

@@ -11,7 +11,7 @@ def test_pipeline_bench_reports_every_stage_and_the_baseline():
     res = bench_pipeline([f.image for f in frames], frames[0].camera, sizes=(500,), reference=False)
     assert set(res) == {"640x480_N500", "native_N500"}
     for row in res.values():
-        for stage in ("decode", "detect", "match", "neighbors", "nmnet", "pose", "total"):
+        for stage in ("decode", "detect", "match", "neighbors", "nmnet", "pose", "total", "match_float32"):
             assert 0 < row[stage]["median"] <= row[stage]["p90"]
         assert row["end_to_end_hz"] > 0 and row["end_to_end_hz_match_stage2"] > 0
         assert row["baseline_hz"] > 0 and row["sift_detect_ms"] > 0

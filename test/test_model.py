@@ -108,7 +108,7 @@ def test_bfloat16_normalisation_rounds_as_torch():
 
 
 def test_bfloat16_is_native_only_with_the_cpu_flags():
-    from nmnet_ros.model_fast import cpu_has_bf16
+    from nmnet_ros.bf16 import cpu_has_bf16
 
     x86 = "flags\t\t: fpu sse2 avx2 avx512f avx512bw avx512_vnni {}\nbugs\t\t: spectre_v1\n"
     assert cpu_has_bf16(x86.format("avx512_bf16"), "x86_64") and cpu_has_bf16(x86.format("amx_bf16 amx_tile"), "x86_64")
@@ -119,7 +119,8 @@ def test_bfloat16_is_native_only_with_the_cpu_flags():
 
 
 def test_precision_choices():
-    from nmnet_ros.model_fast import native_bf16, precision_note, resolve_precision
+    from nmnet_ros.bf16 import native_bf16
+    from nmnet_ros.model_fast import precision_note, resolve_precision
 
     assert resolve_precision("float32") is torch.float32 and resolve_precision("bfloat16") is torch.bfloat16
     assert resolve_precision("auto") is (torch.bfloat16 if native_bf16() else torch.float32)
