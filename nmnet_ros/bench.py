@@ -180,17 +180,20 @@ def bench_pipeline(frames: list[np.ndarray], camera: Camera, sizes: tuple[int, .
             row: dict = {k: {"median": float(np.median(v)), "p90": float(np.percentile(v, 90))} for k, v in st.items()}
             row["serial_hz"] = 1000.0 / row["total"]["median"]
             # the node's schedule, and as same-process baselines matching always beside NM-Net (before
-            # match_stage auto) and NM-Net in float32 (where auto picks bfloat16); in the order A B C C B A,
-            # so that a drift of the machine's speed cancels
+            # match_stage auto), NM-Net in float32 (where auto picks bfloat16) and matching with the float32
+            # GEMM (where auto screens in bfloat16); in the order A B C D D C B A, so that a drift of the
+            # machine's speed cancels
             fe = {m: Frontend(cam, {"max_keypoints": n, "match_stage": m}) for m in ("auto", "second")}
             if model32 is not None:
                 fe["float32"] = Frontend(cam, {"max_keypoints": n, "precision": "float32"})
+                fe["match_float32"] = Frontend(cam, {"max_keypoints": n, "match_gemm": "float32"})
             hz: dict[str, list[float]] = {m: [] for m in fe}
             for m in [*fe, *reversed(fe)]:
                 hz[m].append(pipelined_hz(fe[m], imgs))
             row["end_to_end_hz"], row["end_to_end_hz_match_stage2"] = (float(np.mean(hz[m])) for m in ("auto", "second"))
             if model32 is not None:
                 row["end_to_end_hz_float32"] = float(np.mean(hz["float32"]))
+                row["end_to_end_hz_match_float32"] = float(np.mean(hz["match_float32"]))
             base, sift_ms = [], []
             sift = SiftSimilarity({"max_keypoints": 2000})
             prev = None
@@ -278,6 +281,9 @@ def _run(args: argparse.Namespace) -> int:
                for key, r in res["pipeline"].items() if "end_to_end_hz_float32" in r]
         if f32:
             print("pipelined with NM-Net in float32 (auto runs it in bfloat16 on this CPU): " + ", ".join(f32))
+            m32 = [f"{key} {r['end_to_end_hz_match_float32']:.1f} Hz (screen {r['end_to_end_hz'] / r['end_to_end_hz_match_float32']:.2f}x)"
+                   for key, r in res["pipeline"].items()]
+            print("pipelined with matching on the float32 GEMM (auto screens in bfloat16 on this CPU): " + ", ".join(m32))
         for key, r in res["pipeline"].items():
             if "reference_detect_ms" in r:
                 print(f"\nsame process, {key}: kornia reference detector {r['reference_detect_ms']:.0f} ms vs fast "

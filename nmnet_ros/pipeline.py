@@ -38,6 +38,7 @@ DEFAULT_CONFIG: dict = {
     "precision": SELECTOR_DEFAULTS["precision"],  # NM-Net: auto (bfloat16 where native), float32, bfloat16
     "ratio": None,  # optional ratio test on the putative matches (the paper uses none)
     "mutual": False,
+    "match_gemm": "auto",  # descriptor similarities: auto (bfloat16 screen + float32 re-check where native), float32
     "min_matches": 8,
     "static_flow_px": 1.0,  # median flow of the selected matches below this = camera not moving
     "time_jump_s": 1.0,  # a frame this much older than the previous one starts a new chain (bag loop, clock reset)
@@ -149,7 +150,7 @@ class Frontend:
         return self.detector(image)
 
     def _match_key(self) -> tuple:
-        return (("ratio", self.config["ratio"]), ("mutual", self.config["mutual"]))
+        return (("ratio", self.config["ratio"]), ("mutual", self.config["mutual"]), ("gemm", self.config["match_gemm"]))
 
     def _note_cost(self, part: str, ms: float) -> None:
         old = self._cost_ms.get(part)
