@@ -172,6 +172,14 @@ def _screened(d0: np.ndarray, d1: np.ndarray) -> tuple[torch.Tensor, torch.Tenso
     return torch.from_numpy(np.stack([best, second], 1)), torch.from_numpy(nn), torch.from_numpy(best >= col_best[nn])
 
 
+def warm_up() -> None:
+    """Compile (or load from numba's disk cache) the screening kernels now, so that the first frame pair
+    does not pay for it (compiling takes seconds: a live camera would drop frames meanwhile)."""
+    if native_bf16():
+        d = np.eye(3, 128, dtype=np.float32)
+        match_descriptors(d, d, {"gemm": "bfloat16"})
+
+
 def _empty() -> Matches:
     return Matches(np.zeros((0, 2), np.int64), np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, bool))
 

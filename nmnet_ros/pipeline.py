@@ -23,6 +23,7 @@ from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Detector, Features
 from .geometry import Camera, PoseEstimate
 from .matching import Matches, match_descriptors
+from .matching import warm_up as warm_up_matching
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, Selection, build
 
@@ -118,6 +119,7 @@ class Frontend:
         self.camera = camera
         self.detector = _detector(c)
         self.select = _selector(c)
+        warm_up_matching()  # like the detector's and NM-Net's kernels: compiled before the first frame
         self.prev: tuple[float, Features, tuple[int, int]] | None = None
         self._last_prepared: Prepared | None = None  # the first stage's own previous frame
         self._cost_ms: dict[str, float] = {}  # running means of the stages' parts, for match_stage: auto

@@ -126,3 +126,18 @@ def test_matching_gemm_choice_is_checked():
         match_descriptors(d, d, {"gemm": "float16"})
     m = match_descriptors(d, d[:1], {"gemm": "bfloat16"})  # one candidate: nothing to screen
     assert len(m) == 3 and np.all(m.ratio == 1)
+
+
+def test_frontend_readies_the_screening_kernels_before_the_first_frame():
+    """Compiling them takes seconds: on the first frame pair a live camera would drop frames meanwhile."""
+    import subprocess
+    import sys
+
+    from nmnet_ros.bf16 import native_bf16
+
+    if not native_bf16():
+        pytest.skip("this CPU has no native bfloat16: matching runs the float32 GEMM, nothing to compile")
+    code = ("from nmnet_ros import matching; from nmnet_ros.pipeline import Frontend; "
+            "before = len(matching._screened_nn.signatures); Frontend(); print(before, len(matching._screened_nn.signatures))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["0", "1"]
