@@ -42,13 +42,30 @@ def test_mismatched_descriptor_sizes_raise():
         match_descriptors(np.ones((3, 128)), np.ones((3, 64)))
 
 
+def _reference(d0, d1, config):
+    """The plain matcher the kernels replace: float32 GEMM, torch's top-2 per row, max per column."""
+    import torch
+
+    sim = torch.from_numpy(d0) @ torch.from_numpy(d1).T
+    top, inds = sim.topk(2, dim=1)
+    mutual = (top[:, 0] >= sim.amax(0)[inds[:, 0]]).numpy()
+    dist = (2 - 2 * top).clamp_min(0).sqrt().numpy()
+    ratio = dist[:, 0] / np.maximum(dist[:, 1], 1e-12)
+    keep = np.ones(len(d0), bool)
+    if config.get("ratio") is not None:
+        keep &= ratio < config["ratio"]
+    if config.get("mutual"):
+        keep &= mutual
+    return np.c_[np.nonzero(keep)[0], inds[:, 0].numpy()[keep]], dist[keep, 0], ratio[keep], mutual[keep]
+
+
 def _same_matches(d0, d1, config=None):
-    """The bfloat16-screened and the float32 matcher on the same descriptors: equal matches."""
-    ref = match_descriptors(d0, d1, {**(config or {}), "gemm": "float32"})
-    got = match_descriptors(d0, d1, {**(config or {}), "gemm": "bfloat16"})
-    assert np.array_equal(got.idx, ref.idx) and np.array_equal(got.mutual, ref.mutual)
-    assert np.allclose(got.distance, ref.distance, atol=1e-4) and np.allclose(got.ratio, ref.ratio, atol=1e-3)
-    return ref
+    """The bfloat16-screened and the float32 matcher on the same descriptors: the plain matcher's matches."""
+    idx, dist, ratio, mutual = _reference(d0, d1, config or {})
+    for gemm in ("float32", "bfloat16"):
+        got = match_descriptors(d0, d1, {**(config or {}), "gemm": gemm})
+        assert np.array_equal(got.idx, idx) and np.array_equal(got.mutual, mutual), gemm
+        assert np.allclose(got.distance, dist, atol=1e-4) and np.allclose(got.ratio, ratio, atol=1e-3), gemm
 
 
 @pytest.mark.parametrize("seq, i, j", [("kitti-07", 120, 123), ("strecha-herz-jesus-p25", 0, 1)])
@@ -64,6 +81,7 @@ def test_bfloat16_screen_finds_the_float32_matches_on_real_descriptors(seq, i, j
     for config in ({}, {"ratio": 0.8}, {"mutual": True}):
         _same_matches(d0, d1, config)
     _same_matches(d0[:1001], d1[:937])  # sizes off the GEMM padding
+    _same_matches(d0[:5], d1[:2])  # the fewest candidates the kernels take
 
 
 def test_bfloat16_screen_resolves_differences_below_bfloat16_resolution():
@@ -78,16 +96,17 @@ def test_bfloat16_screen_resolves_differences_below_bfloat16_resolution():
         top3 = np.sort(sim, 1)[:, -3:]
         close = top3 if a is d0 else np.sort(sim, 0)[-3:].T
         assert np.median(close[:, 2] - close[:, 1]) < 1e-3  # the screen alone could not order these
-        m = match_descriptors(a, b, {"gemm": "bfloat16"})
         col2 = np.sort(sim, 0)[-2:]
         decided = np.minimum(top3[:, 2] - top3[:, 1], top3[:, 1] - top3[:, 0]) > 1e-6  # no float32 tie
         decided &= (col2[1] - col2[0])[sim.argmax(1)] > 1e-6  # in the row's column neither
         assert decided.sum() > len(a) // 3
-        assert np.array_equal(m.idx[decided, 1], sim.argmax(1)[decided])
-        d2 = np.sqrt(np.maximum(2 - 2 * top3[:, 1], 0))
-        assert np.allclose(m.ratio[decided], (np.sqrt(np.maximum(2 - 2 * top3[:, 2], 0)) / d2)[decided], atol=1e-3)
-        is_col_best = sim.max(0)[sim.argmax(1)] <= sim.max(1) + 1e-7
-        assert np.array_equal(m.mutual[decided], is_col_best[decided])
+        for gemm in ("float32", "bfloat16"):
+            m = match_descriptors(a, b, {"gemm": gemm})
+            assert np.array_equal(m.idx[decided, 1], sim.argmax(1)[decided])
+            d2 = np.sqrt(np.maximum(2 - 2 * top3[:, 1], 0))
+            assert np.allclose(m.ratio[decided], (np.sqrt(np.maximum(2 - 2 * top3[:, 2], 0)) / d2)[decided], atol=1e-3)
+            is_col_best = sim.max(0)[sim.argmax(1)] <= sim.max(1) + 1e-7
+            assert np.array_equal(m.mutual[decided], is_col_best[decided])
 
 
 def test_bfloat16_screen_margin_covers_worst_case_rounding():
