@@ -22,7 +22,7 @@ from .detectors import DEFAULT_DETECTOR, make_detector
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Detector, Features
 from .geometry import Camera, PoseEstimate
-from .matching import Matches, match_descriptors
+from .matching import GEMMS, Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, Selection, build
@@ -67,9 +67,11 @@ RESTARTS = ("first_frame", "size_changed", "time_jump")
 MATCH_STAGES = ("auto", "first", "second")
 
 
-def _check_match_stage(c: dict) -> None:
-    if c["match_stage"] not in MATCH_STAGES:
-        raise ValueError(f"match_stage must be one of {', '.join(MATCH_STAGES)}, got {c['match_stage']!r}")
+def _check_choices(c: dict) -> None:
+    """ValueError for a matching setting outside its choices (before any frame, not on the first match)."""
+    for key, choices in (("match_stage", MATCH_STAGES), ("match_gemm", GEMMS)):
+        if c[key] not in choices:
+            raise ValueError(f"{key} must be one of {', '.join(choices)}, got {c[key]!r}")
 
 
 def match_first(detect_ms: float, match_ms: float, rest_ms: float) -> bool:
@@ -115,7 +117,7 @@ class Frontend:
     def __init__(self, camera: Camera | None = None, config: dict | None = None) -> None:
         self.config = {**DEFAULT_CONFIG, **(config or {})}
         c = self.config
-        _check_match_stage(c)
+        _check_choices(c)
         self.camera = camera
         self.detector = _detector(c)
         self.select = _selector(c)
@@ -135,7 +137,7 @@ class Frontend:
         if unknown:
             raise KeyError(f"unknown front-end setting(s) {unknown}; known: {', '.join(DEFAULT_CONFIG)}")
         c = {**self.config, **changes}
-        _check_match_stage(c)
+        _check_choices(c)
         detector = _detector(c) if any(c[key] != self.config[key] for key in DETECTOR_KEYS) else self.detector
         select = _selector(c) if any(c[key] != self.config[key] for key in SELECTOR_KEYS) else self.select
         self.config, self.select = c, select

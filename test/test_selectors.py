@@ -160,7 +160,9 @@ def test_matching_runs_where_it_shortens_the_slower_stage():
         Frontend(seq.camera, {"match_stage": "third"})
     with pytest.raises(ValueError, match="match_stage"):
         fe.reconfigure({"match_stage": "both"})
-    assert fe.config["match_stage"] == "auto"
+    with pytest.raises(ValueError, match="match_gemm must be one of auto, float32, bfloat16, got 'int8'"):
+        fe.reconfigure({"match_gemm": "int8"})
+    assert fe.config["match_stage"] == "auto" and fe.config["match_gemm"] == "auto"
 
 
 def test_frontend_reconfigures_while_running(tmp_path):
