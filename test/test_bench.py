@@ -14,6 +14,8 @@ def test_pipeline_bench_reports_every_stage_and_the_baseline():
         for stage in ("decode", "detect", "match", "neighbors", "nmnet", "pose", "total", "match_float32"):
             assert 0 < row[stage]["median"] <= row[stage]["p90"]
         assert row["end_to_end_hz"] > 0 and row["end_to_end_hz_match_stage2"] > 0
+        if "end_to_end_hz_float32" in row:  # native bfloat16: float32 NM-Net and float32 matching beside it
+            assert row["end_to_end_hz_float32"] > 0 and row["end_to_end_hz_match_float32"] > 0
         assert row["baseline_hz"] > 0 and row["sift_detect_ms"] > 0
         assert row["total"]["median"] >= row["detect"]["median"]
 
