@@ -15,6 +15,11 @@ from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic
 
+PRECISIONS = ("auto", "float32", "bfloat16")  # a setting's choices: auto = bfloat16 where the CPU has it natively
+# bfloat16 GEMMs pad their rows to a multiple of this: oneDNN builds (JITs) a kernel for every new shape, ~9 ms
+# per frame with a new N; padded, a stream of frames meets at most max_keypoints / PAD shapes
+PAD = 64
+
 
 def cpu_has_bf16(cpuinfo: str, machine: str) -> bool:
     """Whether a CPU, by its /proc/cpuinfo text and ``platform.machine()``, has bfloat16 dot products
@@ -33,6 +38,14 @@ def native_bf16() -> bool:
         return cpu_has_bf16(Path("/proc/cpuinfo").read_text(), platform.machine())
     except OSError:
         return False
+
+
+def use_bf16(precision: str, what: str) -> bool:
+    """Whether the setting ``what`` = ``precision`` (one of :data:`PRECISIONS`) means bfloat16 on this CPU;
+    ValueError naming the setting for anything else."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"unknown {what} {precision!r}; use one of {', '.join(PRECISIONS)}")
+    return precision == "bfloat16" or (precision == "auto" and native_bf16())
 
 
 @intrinsic

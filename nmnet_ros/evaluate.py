@@ -17,12 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .bf16 import PRECISIONS
 from .cache import FeatureCache
 from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
-from .model_fast import PRECISIONS, precision_note
+from .model_fast import precision_note
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, ROBUST, build

@@ -16,20 +16,18 @@ import numba
 import numpy as np
 import torch
 
-from .bf16 import bits_from_f32, f32_from_bits, native_bf16
+from .bf16 import PAD, bits_from_f32, f32_from_bits, native_bf16, use_bf16
 
 DEFAULT_CONFIG: dict = {
     "ratio": None,  # Lowe ratio threshold (e.g. 0.8); None keeps every nearest neighbour
     "mutual": False,  # keep only mutual nearest neighbours
     "gemm": "auto",  # similarities: auto (bfloat16 screen where native, else float32), float32, bfloat16
 }
-GEMMS = ("auto", "float32", "bfloat16")
 
 # bfloat16 keeps 8 significant bits (unit roundoff u = 2^-8). For unit vectors sum |a_i b_i| <= 1, so
 # rounding the inputs moves the dot product by at most 2u + u^2, the float32 sum by < 128 * 2^-24 and
 # rounding the result by u (1 + 3u): 3u + 6u^2 + 2^-17 = 0.01181 in all; rounded up.
 SCREEN_DELTA = 0.0125
-PAD = 64  # rows are padded to a multiple of this: oneDNN builds a kernel for every new GEMM shape
 
 
 @dataclass
@@ -166,20 +164,19 @@ def match_descriptors(desc0: np.ndarray, desc1: np.ndarray, config: dict | None 
     with ``mutual``, keeps pairs that are each other's nearest neighbour.
     """
     c = {**DEFAULT_CONFIG, **(config or {})}
+    screen = use_bf16(c["gemm"], "matching gemm")
     d0 = np.asarray(desc0, np.float32)
     d1 = np.asarray(desc1, np.float32)
     if d0.ndim != 2 or d1.ndim != 2 or (len(d0) and len(d1) and d0.shape[1] != d1.shape[1]):
         raise ValueError(f"descriptor arrays must be (N,D) with equal D, got {d0.shape} and {d1.shape}")
     if len(d0) == 0 or len(d1) == 0:
         return _empty()
-    if c["gemm"] not in GEMMS:
-        raise ValueError(f"matching gemm must be one of {', '.join(GEMMS)}, got {c['gemm']!r}")
     a, b = torch.from_numpy(d0), torch.from_numpy(d1)
     na, nb = (a * a).sum(1), (b * b).sum(1)
     k = min(2, len(d1))
     if bool(((na - 1).abs() < 1e-3).all() and ((nb - 1).abs() < 1e-3).all()):
         # unit descriptors (RootSIFT): |a-b|^2 = 2 - 2 a.b, so rank the GEMM output directly
-        if k == 2 and (c["gemm"] == "bfloat16" or (c["gemm"] == "auto" and native_bf16())):
+        if k == 2 and screen:
             svals, nn1, mutual = _screened(d0, d1)
         else:
             sim = a @ b.T

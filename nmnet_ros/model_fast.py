@@ -23,24 +23,16 @@ import torch
 from numba.core import types
 from numba.extending import overload
 
-from .bf16 import bits_from_f32, f32_from_bits, native_bf16
+from .bf16 import PAD, bits_from_f32, f32_from_bits, native_bf16, use_bf16
 from .jit import launch
 from .model import NMNet, ResBlock
 
 Norm = tuple[torch.Tensor, torch.Tensor, float]  # BN scale, BN shift, IN eps
-PRECISIONS = ("auto", "float32", "bfloat16")
-# bfloat16 pads N to a multiple of this: oneDNN builds (JITs) a GEMM kernel for every new shape, ~9 ms
-# per frame with a new N; padded, a stream of frames meets at most max_keypoints / PAD shapes
-PAD = 64
 
 
 def resolve_precision(precision: str) -> torch.dtype:
     """'auto' | 'float32' | 'bfloat16' -> the dtype NM-Net runs in ('auto': bfloat16 where native)."""
-    if precision not in PRECISIONS:
-        raise ValueError(f"unknown NM-Net precision {precision!r}; use one of {', '.join(PRECISIONS)}")
-    if precision == "auto":
-        return torch.bfloat16 if native_bf16() else torch.float32
-    return getattr(torch, precision)
+    return torch.bfloat16 if use_bf16(precision, "NM-Net precision") else torch.float32
 
 
 def precision_note(precision: str) -> str:

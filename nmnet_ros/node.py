@@ -32,13 +32,14 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 
+from .bf16 import PRECISIONS
 from .caminfo import camera_from_info, fit_camera
 from .dds import LARGE_FRAME_BYTES, follow_reliability, large_frames_advice, silence_advice, where_are_the_images
 from .debug_view import draw_matches
 from .detectors import DEFAULT_DETECTOR, DETECTORS
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
-from .model_fast import PRECISIONS, precision_note
+from .model_fast import precision_note
 from .pipeline import RESTARTS, FrameResult, Frontend, Prepared
 from .posemsg import relative_pose_of_current
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS

@@ -18,11 +18,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .bf16 import PRECISIONS
 from .detectors import DEFAULT_DETECTOR, make_detector
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Detector, Features
 from .geometry import Camera, PoseEstimate
-from .matching import GEMMS, Matches, match_descriptors
+from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, Selection, build
@@ -69,7 +70,7 @@ MATCH_STAGES = ("auto", "first", "second")
 
 def _check_choices(c: dict) -> None:
     """ValueError for a matching setting outside its choices (before any frame, not on the first match)."""
-    for key, choices in (("match_stage", MATCH_STAGES), ("match_gemm", GEMMS)):
+    for key, choices in (("match_stage", MATCH_STAGES), ("match_gemm", PRECISIONS)):
         if c[key] not in choices:
             raise ValueError(f"{key} must be one of {', '.join(choices)}, got {c[key]!r}")
 

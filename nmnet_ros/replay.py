@@ -19,13 +19,13 @@ from pathlib import Path
 import numpy as np
 
 from .bags import BagError, BagReader, read_frames
+from .bf16 import PRECISIONS
 from .caminfo import fit_camera
 from .datasets import read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
 from .geometry import Camera, pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
-from .model_fast import PRECISIONS
 from .pipeline import RESTARTS, FrameResult, Frontend
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 

@@ -144,8 +144,9 @@ def test_bfloat16_screen_margin_covers_worst_case_rounding():
 
 def test_matching_gemm_choice_is_checked():
     d = unit(np.random.default_rng(1).normal(size=(3, 128)))
-    with pytest.raises(ValueError, match="gemm must be one of auto, float32, bfloat16, got 'float16'"):
-        match_descriptors(d, d, {"gemm": "float16"})
+    for a, b in ((d, d), (d[:0], d)):  # refused before anything else, empty input included
+        with pytest.raises(ValueError, match="unknown matching gemm 'float16'; use one of auto, float32, bfloat16"):
+            match_descriptors(a, b, {"gemm": "float16"})
     m = match_descriptors(d, d[:1], {"gemm": "bfloat16"})  # one candidate: nothing to screen
     assert len(m) == 3 and np.all(m.ratio == 1)
 
