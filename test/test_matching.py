@@ -60,12 +60,12 @@ def _reference(d0, d1, config):
 
 
 def _same_matches(d0, d1, config=None):
-    """The bfloat16-screened and the float32 matcher on the same descriptors: the plain matcher's matches."""
+    """The bfloat16-screened matcher on the same descriptors: the plain matcher's matches (the float32 path
+    is that matcher, so it is not compared with itself here)."""
     idx, dist, ratio, mutual = _reference(d0, d1, config or {})
-    for gemm in ("float32", "bfloat16"):
-        got = match_descriptors(d0, d1, {**(config or {}), "gemm": gemm})
-        assert np.array_equal(got.idx, idx) and np.array_equal(got.mutual, mutual), gemm
-        assert np.allclose(got.distance, dist, atol=1e-4) and np.allclose(got.ratio, ratio, atol=1e-3), gemm
+    got = match_descriptors(d0, d1, {**(config or {}), "gemm": "bfloat16"})
+    assert np.array_equal(got.idx, idx) and np.array_equal(got.mutual, mutual)
+    assert np.allclose(got.distance, dist, atol=1e-4) and np.allclose(got.ratio, ratio, atol=1e-3)
 
 
 @pytest.mark.parametrize("seq, i, j", [("kitti-07", 120, 123), ("strecha-herz-jesus-p25", 0, 1)])
