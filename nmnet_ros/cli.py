@@ -6,6 +6,10 @@ import argparse
 import importlib
 import sys
 
+# top-level packages that come from the ROS 2 wheels (x86_64 Linux) or a sourced ROS 2 installation
+ROS_PACKAGES = frozenset({"rclpy", "rcl_interfaces", "builtin_interfaces", "sensor_msgs", "geometry_msgs", "std_msgs",
+                          "diagnostic_msgs", "rosidl_runtime_py", "rpyutils", "rosidl_parser"})
+
 # subcommand -> (module, help); each module has add_arguments(parser) and main(args) -> int
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("nmnet_ros.demo", "run the front end on the bundled sample and print matches and pose"),
@@ -30,6 +34,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def ros_missing(e: ImportError) -> str | None:
+    """What to do when ``e`` is a ROS 2 Python package failing to import (None for any other module)."""
+    if not e.name or e.name.split(".")[0] not in ROS_PACKAGES:
+        return None
+    return (f"the ROS 2 Python package {e.name.split('.')[0]!r} is missing. On x86_64 Linux `make setup` (or `pip install -r "
+            "requirements.txt`) installs the ROS 2 Kilted wheels; elsewhere (arm64: Jetson, Raspberry Pi) source your ROS 2 "
+            "installation first (`source /opt/ros/kilted/setup.bash`), from a Python of the version it was built for")
+
+
+def node_main(args: list[str] | None = None) -> int:
+    """Entry point of the ``nmnet_node`` console script: the node, or one line saying which ROS package is missing."""
+    try:
+        from .node import main
+    except ImportError as e:
+        if (advice := ros_missing(e)) is None:
+            raise
+        print(f"nmnet_node: error: {advice}", file=sys.stderr)
+        return 2
+    return main(args)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``nmnet`` console script."""
     argv = sys.argv[1:] if argv is None else argv
@@ -46,6 +71,11 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except (ValueError, OSError) as e:
         print(f"nmnet {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except ImportError as e:  # replay --live and demo run the node and a player over DDS
+        if (advice := ros_missing(e)) is None:
+            raise
+        print(f"nmnet {args.command}: error: {advice}", file=sys.stderr)
         return 2
 
 

@@ -627,7 +627,7 @@ def test_the_package_installs_launch_config_and_ament_index(tmp_path):
     assert {"share/nmnet_ros/launch/nmnet.launch.xml", "share/nmnet_ros/config/nmnet.yaml", "share/nmnet_ros/package.xml",
             "share/ament_index/resource_index/packages/nmnet_ros"} <= share
     entry = next(zipfile.ZipFile(wheel).read(n).decode() for n in names if n.endswith("entry_points.txt"))
-    assert "nmnet_node = nmnet_ros.node:main" in entry and "nmnet = nmnet_ros.cli:main" in entry
+    assert "nmnet_node = nmnet_ros.cli:node_main" in entry and "nmnet = nmnet_ros.cli:main" in entry
 
 
 def test_lasting_warnings_repeat_ever_less_often_until_cleared(ros, monkeypatch):
