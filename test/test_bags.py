@@ -177,6 +177,7 @@ def test_demo_without_shared_data(tmp_path):
     for name in ("errors.png", "trajectory.png", "matches.png", "nmnet_output.mcap"):
         assert (tmp_path / "demo" / name).stat().st_size > 1000
     assert "SIFT+ratio+MAGSAC++" in r.stdout
+    assert "1/2 live: playing" in r.stdout and json.loads((tmp_path / "demo" / "live_summary.json").read_text())["processed"] > 0
     assert "[WARN]" not in r.stderr, r.stderr  # the node warned no_frames while the player drained its results
 
 

@@ -54,20 +54,20 @@ def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
         assert list(make_reader(f).iter_messages()) == []
 
 
-def test_offline_replay_runs_without_ros(tmp_path):
-    """The offline tools need no ROS: the sample bag replays and its output holds the node's topics."""
+def test_demo_runs_its_offline_part_without_ros(tmp_path):
+    """The offline tools need no ROS: `nmnet demo` skips the live part with the note and replays the sample
+    bag offline, next to the SIFT baseline; its output holds the node's topics."""
     from mcap.reader import make_reader
 
-    from nmnet_ros.demo import SAMPLE_BAG
-
-    done = _without_ros(f"from nmnet_ros.cli import main\nsys.exit(main(['replay', {str(SAMPLE_BAG)!r}, '--out', "
-                        "'out.mcap', '--json', 'out.json']))", tmp_path)
+    done = _without_ros("from nmnet_ros.cli import main\nsys.exit(main(['demo', '--out-dir', 'demo']))", tmp_path)
     assert done.returncode == 0, done.stderr[-2000:]
-    summary = json.loads((tmp_path / "out.json").read_text())
-    assert summary["processed"] == summary["frames"] == 40
-    with open(tmp_path / "out.mcap", "rb") as f:
+    assert "1/2 live: skipped: the ROS 2 Python package 'rclpy' is missing" in done.stdout
+    summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
+    assert summary["processed"] == summary["frames"] == 40 and summary["baseline"]["processed"] == 40
+    with open(tmp_path / "demo" / "nmnet_output.mcap", "rb") as f:
         topics = {channel.topic for _, channel, _ in make_reader(f).iter_messages()}
     assert topics == {"/nmnet_node/matches", "/nmnet_node/relative_pose"}
+    assert not (tmp_path / "demo" / "nmnet_live.mcap").exists()
 
 
 def test_ros_wheels_are_required_only_where_pypi_has_them():
