@@ -21,11 +21,13 @@ import numpy as np
 
 from .bags import BagError, BagReader, pick_topic, pose_from_msg, typestore
 from .caminfo import info_fields
-from .datasets import quat_to_rot
 from .dds import LARGE_FRAMES_PROFILE
-from .geometry import Camera, pose_auc, relative_pose, rotation_error_deg, translation_error_deg
+from .geometry import Camera, pose_auc
 from .imgconv import IMAGE_TYPES
 from .mcap_out import McapOutput
+from .pipeline import FrameResult
+from .posemsg import estimate_of_message
+from .replay import frame_error
 
 NODE_NAME = "nmnet_node"
 
@@ -170,10 +172,11 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
 
 
 def score_recording(path: Path, bag: Path) -> dict:
-    """Pose errors of a recorded ``~/relative_pose`` stream against the bag's ground truth.
+    """Pose errors of a recorded ``~/relative_pose`` stream against the bag's ground truth, scored as the
+    offline replay scores its results (:func:`~nmnet_ros.replay.frame_error`; "no estimate" is a failure).
 
-    Each result is relative to the node's previous processed frame, taken as the previous
-    result's stamp (the first result, whose reference is unknown, is not scored).
+    Each message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the
+    first, relative to the node's first frame, which has no message, is not scored.
     """
     rec = BagReader(path)
     poses = [(m.log_time_ns, m.msg) for m in rec.messages({f"/{NODE_NAME}/relative_pose"})]
@@ -183,13 +186,11 @@ def score_recording(path: Path, bag: Path) -> dict:
         if gt_t else {}
     errs = []
     for (t_prev, _), (t_cur, msg) in zip(poses, poses[1:], strict=False):
-        if t_prev not in gt or t_cur not in gt:
-            continue
-        R_gt, t_gt = relative_pose(gt[t_prev], gt[t_cur])
         o, p = msg.pose.pose.orientation, msg.pose.pose.position
-        R_pc = quat_to_rot([o.x, o.y, o.z, o.w])  # published: T_prev_cur; scored: x_cur = R x_prev + t
-        R, t = R_pc.T, -R_pc.T @ np.array([p.x, p.y, p.z])
-        errs.append((rotation_error_deg(R, R_gt), translation_error_deg(t, t_gt)))
+        status, pose = estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance)
+        r = FrameResult(1e-9 * t_cur, "pose_failed" if status == "no_estimate" else status, pose=pose)
+        if (err := frame_error(r, gt.get(t_prev), gt.get(t_cur))) is not None:
+            errs.append(err)
     e = np.array(errs) if errs else np.zeros((0, 2))
     aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
     return {"median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,

@@ -64,7 +64,8 @@ class McapOutput:
 
     def write_result(self, result: FrameResult, stamp: float, frame_id: str = "camera", debug: np.ndarray | None = None,
                      prefix: str = "/nmnet_node") -> None:
-        """A FrameResult as ``{prefix}/matches`` (PointCloud2) and ``{prefix}/relative_pose``."""
+        """A FrameResult as ``{prefix}/matches`` (PointCloud2) and ``{prefix}/relative_pose`` (for every frame but
+        the stream's first, see :mod:`nmnet_ros.posemsg`)."""
         T = self.ts.types
         t_ns = int(round(stamp * 1e9))
         hdr = self._header(stamp, frame_id)
@@ -75,13 +76,12 @@ class McapOutput:
                                                  point_step=f["point_step"], row_step=f["row_step"],
                                                  data=np.frombuffer(f["data"], np.uint8), is_dense=True)
         self.write(f"{prefix}/matches", "sensor_msgs/msg/PointCloud2", cloud, t_ns)
-        if result.status in ("ok", "no_motion"):
-            q, tr, cov = relative_pose_of_current(result.pose, result.num_selected, static=result.status == "no_motion")
-            pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=tr[0], y=tr[1], z=tr[2]),
-                                               orientation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
-            msg = T["geometry_msgs/msg/PoseWithCovarianceStamped"](
-                header=hdr, pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=cov.ravel()))
-            self.write(f"{prefix}/relative_pose", "geometry_msgs/msg/PoseWithCovarianceStamped", msg, t_ns)
+        q, tr, cov = relative_pose_of_current(result.status, result.pose, result.num_selected)
+        pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=tr[0], y=tr[1], z=tr[2]),
+                                           orientation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
+        msg = T["geometry_msgs/msg/PoseWithCovarianceStamped"](
+            header=hdr, pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=cov.ravel()))
+        self.write(f"{prefix}/relative_pose", "geometry_msgs/msg/PoseWithCovarianceStamped", msg, t_ns)
         if debug is not None:
             fi = array_to_image_fields(debug)
             fi["data"] = np.frombuffer(fi["data"], np.uint8)

@@ -40,7 +40,7 @@ from .detectors import DEFAULT_DETECTOR, DETECTORS
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
 from .model_fast import precision_note
-from .pipeline import RESTARTS, FrameResult, Frontend, Prepared
+from .pipeline import FrameResult, Frontend, Prepared
 from .posemsg import relative_pose_of_current
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 
@@ -135,7 +135,7 @@ class Stats:
     received: int = 0
     processed: int = 0
     dropped: int = 0
-    published: int = 0
+    estimated: int = 0  # relative poses with an estimate (ok, no_motion)
     warnings: dict[str, int] = field(default_factory=dict)
     latency_ms: deque = field(default_factory=lambda: deque(maxlen=100))
     stage_ms: dict[str, deque] = field(default_factory=dict)
@@ -400,7 +400,7 @@ class NMNetNode(Node):
     def _publish(self, header, img: np.ndarray, r: FrameResult) -> None:
         s = self.stats
         s.last_status, s.last_matches, s.last_selected, s.last_keypoints = r.status, len(r.k0), r.num_selected, r.num_keypoints
-        if r.status in RESTARTS:
+        if s.processed == 1:  # the node's first frame: nothing to relate it to; every later one publishes (see posemsg)
             return
         if r.status == "too_few_matches":
             self._warn("too_few_matches", f"only {r.num_selected} matches selected of {len(r.k0)} (need 8): no pose")
@@ -417,15 +417,15 @@ class NMNetNode(Node):
         cloud.fields = [PointField(name=n, offset=o, datatype=PointField.FLOAT32, count=1) for n, o in f["fields"]]
         cloud.data = f["data"]
         self.pub_matches.publish(cloud)
+        pose_msg = PoseWithCovarianceStamped(header=header)
+        q, t, cov = relative_pose_of_current(r.status, r.pose, r.num_selected)
+        pose_msg.pose.pose.position.x, pose_msg.pose.pose.position.y, pose_msg.pose.pose.position.z = (float(v) for v in t)
+        o = pose_msg.pose.pose.orientation
+        o.x, o.y, o.z, o.w = (float(v) for v in q)
+        pose_msg.pose.covariance = [float(v) for v in cov.ravel()]
+        self.pub_pose.publish(pose_msg)
         if r.status in ("ok", "no_motion"):
-            pose_msg = PoseWithCovarianceStamped(header=header)
-            q, t, cov = relative_pose_of_current(r.pose, r.num_selected, static=r.status == "no_motion")
-            pose_msg.pose.pose.position.x, pose_msg.pose.pose.position.y, pose_msg.pose.pose.position.z = (float(v) for v in t)
-            o = pose_msg.pose.pose.orientation
-            o.x, o.y, o.z, o.w = (float(v) for v in q)
-            pose_msg.pose.covariance = [float(v) for v in cov.ravel()]
-            self.pub_pose.publish(pose_msg)
-            s.published += 1
+            s.estimated += 1
         if self.params["publish_debug_image"] and self.pub_debug.get_subscription_count() > 0:
             dbg = Image(header=header)
             for k, v in array_to_image_fields(draw_matches(img, r.k0, r.k1, r.mask)).items():
@@ -438,7 +438,7 @@ class NMNetNode(Node):
         lat = np.array(s.latency_ms) if s.latency_ms else np.zeros(1)
         values = {
             "frames_received": s.received, "frames_processed": s.processed, "frames_dropped": s.dropped,
-            "poses_published": s.published, "rate_hz": round(s.processed / elapsed, 3),
+            "poses_estimated": s.estimated, "rate_hz": round(s.processed / elapsed, 3),
             "latency_p50_ms": round(float(np.percentile(lat, 50)), 1), "latency_p90_ms": round(float(np.percentile(lat, 90)), 1),
             "input_qos": "reliable" if self.image_reliable else "best_effort",
             "keypoints": s.last_keypoints, "matches": s.last_matches, "selected": s.last_selected, "last_status": s.last_status,

@@ -4,17 +4,24 @@ The front end estimates x_cur = R x_prev + t. Published is the pose of the curre
 the previous camera's optical frame: T_prev_cur = inv([R | t]), translation a unit direction
 (monocular: the scale is unknown) and a diagonal covariance that shrinks with the number of
 selected matches.
+
+Every processed frame but a stream's first gets one message, relative to the frame of the message
+before it. A frame without an estimate (too few matches, a failed pose, a restart of the chain: new
+frame size, time jump, new detector settings) gets the identity with NO_ESTIMATE_VAR on every axis:
+no information, so that a back end chaining the messages sees the gap instead of bridging it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .datasets import quat_to_rot
 from .geometry import PoseEstimate
 
 ROT_SIGMA_RAD = np.radians(0.5)  # per-axis rotation sigma at REF_MATCHES selected matches
 DIR_SIGMA = 0.05  # per-axis sigma of the unit translation direction at REF_MATCHES
 REF_MATCHES = 200
+NO_ESTIMATE_VAR = 1e6  # variance on every axis of a frame without an estimate
 
 
 def rot_to_quat(R: np.ndarray) -> np.ndarray:
@@ -31,15 +38,19 @@ def rot_to_quat(R: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def relative_pose_of_current(pose: PoseEstimate | None, num_matches: int, static: bool = False
+def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches: int
                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(quaternion xyzw, translation direction, 6x6 covariance [x y z roll pitch yaw]) of T_prev_cur.
+    """(quaternion xyzw, translation direction, 6x6 covariance [x y z roll pitch yaw]) of T_prev_cur for a
+    frame of ``status`` (a FrameResult's).
 
-    A static camera gives the identity with zero translation and the rotation covariance.
+    ``ok``: the estimate. ``no_motion`` (a static camera): the identity with zero translation and the
+    rotation covariance. Any other status: the identity with NO_ESTIMATE_VAR on every axis.
     """
-    scale = REF_MATCHES / max(num_matches, 1)
     cov = np.zeros((6, 6))
-    if static or pose is None:
+    if status not in ("ok", "no_motion") or (status == "ok" and pose is None):
+        return np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.eye(6) * NO_ESTIMATE_VAR
+    scale = REF_MATCHES / max(num_matches, 1)
+    if status == "no_motion":
         cov[:3, :3] = np.eye(3) * 1e-6
         cov[3:, 3:] = np.eye(3) * ROT_SIGMA_RAD**2 * scale
         return np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), cov
@@ -49,3 +60,15 @@ def relative_pose_of_current(pose: PoseEstimate | None, num_matches: int, static
     cov[:3, :3] = np.eye(3) * DIR_SIGMA**2 * scale
     cov[3:, 3:] = np.eye(3) * ROT_SIGMA_RAD**2 * scale
     return rot_to_quat(R_pc), t_pc, cov
+
+
+def estimate_of_message(q_xyzw: np.ndarray, position: np.ndarray, covariance: np.ndarray) -> tuple[str, PoseEstimate | None]:
+    """A relative_pose message read back in the front end's terms (the inverse of :func:`relative_pose_of_current`):
+    status ``ok`` with the pose (x_cur = R x_prev + t), ``no_motion`` or ``no_estimate`` (both without one)."""
+    if np.asarray(covariance).ravel()[0] >= NO_ESTIMATE_VAR:  # the message carries it row-major, 36 values
+        return "no_estimate", None
+    p = np.asarray(position, np.float64)
+    if not p.any():  # an estimate's translation is a unit direction
+        return "no_motion", None
+    R_pc = quat_to_rot(q_xyzw)
+    return "ok", PoseEstimate(R_pc.T, -R_pc.T @ p, np.zeros((3, 3)), np.zeros(0, bool))

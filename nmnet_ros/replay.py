@@ -139,7 +139,7 @@ def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, g
                 run.err_stamps.append(f.stamp)
             run.gt.append(T)
             prev_gt = T
-            if r.status in RESTARTS:
+            if len(run.results) == 1:  # the stream's first frame: nothing to relate it to (see posemsg)
                 continue
             want_overlay = overlay is None and r.status == "ok"
             dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if debug_images or want_overlay else None

@@ -73,7 +73,8 @@ def test_round_trip_all_formats_same_frames_and_results(bags, tmp_path):
         r = nmnet("replay", str(bags[fmt]), "--out", str(out), "--json", str(tmp_path / f"{fmt}.json"), "--no-progress")
         assert r.returncode == 0, r.stderr
         results[fmt] = json.loads((tmp_path / f"{fmt}.json").read_text())
-        assert read_output(out)["/nmnet_node/matches"] == 3
+        counts = read_output(out)
+        assert counts["/nmnet_node/matches"] == counts["/nmnet_node/relative_pose"] == 3
     for key in ("processed", "median_rot_deg", "median_trans_deg", "auc5"):
         assert results["mcap"][key] == pytest.approx(results["ros1"][key])
     assert results["mcap"]["median_rot_deg"] < 1.0
@@ -194,7 +195,7 @@ def test_live_replay_agrees_with_offline(tmp_path):
     assert s_live["frames"] == s_off["frames"] == 40
     assert s_live["processed"] + s_live["dropped"] == 40 and s_live["processed"] >= 5
     counts = read_output(tmp_path / "live.mcap")
-    assert counts["/nmnet_node/matches"] == s_live["processed"] - 1
+    assert counts["/nmnet_node/matches"] == counts["/nmnet_node/relative_pose"] == s_live["processed"] - 1
     assert s_live["median_rot_deg"] < 1.0 and abs(s_live["median_rot_deg"] - s_off["median_rot_deg"]) < 0.5
 
 

@@ -91,8 +91,24 @@ class Peer:
     def wait_result_for(self, stamp: float, timeout: float = 30.0) -> bool:
         return spin_until(self.node, lambda: any(abs(s - stamp) < 1e-6 for s in self.stamps(self.matches)), timeout)
 
+    def pose_for(self, stamp: float, timeout: float = 10.0):
+        """The relative_pose message of the frame stamped ``stamp`` (None if none comes)."""
+        def find():
+            return next((m for _, m in self.poses if abs(m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec - stamp) < 1e-6), None)
+        spin_until(self.node, lambda: find() is not None, timeout)
+        return find()
+
     def close(self) -> None:
         self.node.destroy_node()
+
+
+def no_estimate(msg) -> bool:
+    """A relative pose that says "no estimate": the identity, variance NO_ESTIMATE_VAR on every axis."""
+    from nmnet_ros.posemsg import NO_ESTIMATE_VAR
+
+    o, p = msg.pose.pose.orientation, msg.pose.pose.position
+    return (o.x, o.y, o.z, o.w, p.x, p.y, p.z) == (0, 0, 0, 1, 0, 0, 0) and \
+        np.array_equal(np.asarray(msg.pose.covariance).reshape(6, 6), np.eye(6) * NO_ESTIMATE_VAR)
 
 
 @pytest.fixture
@@ -238,6 +254,12 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
         assert wait_diag(peer, "warn_size_changed", 2)
         peer.pub_img.publish(image_msg(img2, 16.0))
         assert peer.wait_result_for(16.0), "node did not recover after bad input"
+        # every processed frame after the first has a relative pose, each relative to the frame of the one before,
+        # so a back end chaining them never bridges a gap: the textureless frame (13) and the next processed one,
+        # matched against it (15), say "no estimate"; 14 (a size its camera_info does not fit) was skipped, not
+        # processed: no message; 16 is relative to 15
+        assert no_estimate(peer.pose_for(13.0)) and no_estimate(peer.pose_for(15.0)) and peer.pose_for(14.0, 0.5) is None
+        assert not no_estimate(peer.pose_for(16.0)) and peer.pose_for(16.0).pose.covariance[0] < 1.0
         big = image_msg(img2.astype(np.uint16) << 4, 20.0)  # 0.9 MB on best effort: some arrive, the node says why not all
         for n in range(50):
             big.header.stamp.sec = 20 + n
@@ -257,6 +279,7 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
         assert wait_diag(peer, "warn_time_jump", 1)
         peer.pub_img.publish(image_msg(img2, 2.0))
         assert peer.wait_result_for(2.0), "no result after the stamps started over"
+        assert no_estimate(peer.pose_for(1.0)) and not no_estimate(peer.pose_for(2.0))
         for _ in range(2):  # a driver that does not stamp: 0 is a jump back, then a duplicate, said so
             peer.pub_img.publish(image_msg(img2, 0.0))
             spin_until(peer.node, lambda: False, 0.3)

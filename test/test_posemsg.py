@@ -1,0 +1,44 @@
+"""The relative-pose messages: one per frame after the first, "no estimate" where the front end has none."""
+
+import numpy as np
+import pytest
+
+from nmnet_ros.geometry import PoseEstimate
+from nmnet_ros.pipeline import RESTARTS
+from nmnet_ros.posemsg import NO_ESTIMATE_VAR, estimate_of_message, relative_pose_of_current
+
+
+def _pose(deg: float, t: tuple[float, float, float]) -> PoseEstimate:
+    a = np.radians(deg)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    t = np.asarray(t, float)
+    return PoseEstimate(R, t / np.linalg.norm(t), np.zeros((3, 3)), np.zeros(0, bool))
+
+
+def test_an_estimate_reads_back_as_itself():
+    est = _pose(3.0, (0.1, -0.2, 1.0))
+    q, p, cov = relative_pose_of_current("ok", est, 400)
+    assert np.isclose(np.linalg.norm(p), 1.0) and 0 < cov[0, 0] < 1 and cov[0, 0] == cov[1, 1]
+    status, back = estimate_of_message(q, p, cov.ravel())
+    assert status == "ok"
+    np.testing.assert_allclose(back.R, est.R, atol=1e-12)
+    np.testing.assert_allclose(back.t, est.t, atol=1e-12)
+    assert relative_pose_of_current("ok", est, 100)[2][0, 0] == 4 * cov[0, 0]  # fewer matches, wider
+
+
+def test_a_static_camera_is_the_identity_with_a_small_covariance():
+    q, p, cov = relative_pose_of_current("no_motion", None, 300)
+    assert q.tolist() == [0, 0, 0, 1] and not p.any() and cov[0, 0] < 1e-5
+    assert estimate_of_message(q, p, cov.ravel()) == ("no_motion", None)
+
+
+@pytest.mark.parametrize("status", ["too_few_matches", "pose_failed", *RESTARTS])
+def test_a_frame_without_an_estimate_says_so(status):
+    q, p, cov = relative_pose_of_current(status, None, 5)
+    assert q.tolist() == [0, 0, 0, 1] and not p.any()
+    np.testing.assert_array_equal(cov, np.eye(6) * NO_ESTIMATE_VAR)
+    assert estimate_of_message(q, p, cov.ravel()) == ("no_estimate", None)
+
+
+def test_ok_without_a_pose_is_no_estimate():
+    assert estimate_of_message(*relative_pose_of_current("ok", None, 50))[0] == "no_estimate"
