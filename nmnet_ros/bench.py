@@ -230,6 +230,28 @@ def bench_pipeline(frames: list[np.ndarray], camera: Camera, sizes: tuple[int, .
     return out
 
 
+def bench_hd(frames: list[np.ndarray], camera: Camera, size: tuple[int, int] = (1920, 1080), width: int = 960,
+             n: int = 2000) -> dict:
+    """A high-resolution camera (the frames resized to ``size``): detection at full size and with
+    ``resize_width`` = ``width``, and the pipelined rate of each, alternated A B B A."""
+    import cv2
+
+    from .pipeline import Frontend, downscaled
+
+    imgs = [cv2.resize(f, size, interpolation=cv2.INTER_LINEAR) for f in frames]
+    cam = camera.resized(*size, (frames[0].shape[1], frames[0].shape[0]))
+    fe = {w: Frontend(cam, {"max_keypoints": n, "resize_width": w}) for w in (0, width)}
+    out: dict = {"size": list(size), "resize_width": width, "keypoints": n}
+    for w, f in fe.items():
+        with cpu_threads(1):  # a node stage's budget; the downscaling counts
+            out[f"detect_ms_{w}"] = float(np.median(timeit(lambda f=f, w=w: f.detect(downscaled(imgs[1], w)), 3)))
+    hz: dict[int, list[float]] = {0: [], width: []}
+    for w in (0, width, width, 0):
+        hz[w].append(pipelined_hz(fe[w], imgs))
+    out["hz_0"], out[f"hz_{width}"] = (float(np.mean(hz[w])) for w in (0, width))
+    return out
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet bench``."""
     p.add_argument("--sizes", default="1000,2000", help="correspondence counts")
@@ -301,6 +323,12 @@ def _run(args: argparse.Namespace) -> int:
         if gemm:
             print("same process, matching with the float32 GEMM vs as run (auto: bfloat16 screen + float32 re-check "
                   "on this CPU): " + ", ".join(gemm))
+        hd = res["hd"] = bench_hd([f.image for f in frames], frames[0].camera)
+        w = hd["resize_width"]
+        print(f"\n{hd['size'][0]}x{hd['size'][1]} frames (the sample's, upscaled), {hd['keypoints']} keypoints, 1 thread: "
+              f"detect {hd['detect_ms_0']:.0f} ms at full size vs {hd[f'detect_ms_{w}']:.0f} ms with resize_width {w} "
+              f"({hd['detect_ms_0'] / hd[f'detect_ms_{w}']:.1f}x); pipelined {hd['hz_0']:.1f} vs {hd[f'hz_{w}']:.1f} Hz "
+              f"({hd[f'hz_{w}'] / hd['hz_0']:.1f}x)")
         sift = [f"{key.split('_')[0]} {r['sift_detect_ms']:.0f} ms" for key, r in res["pipeline"].items() if key.endswith("N2000")]
         print("\nOpenCV SIFT (2000 kp, similarity frames, --detector sift) detect+describe: " + ", ".join(sift))
     if args.json:

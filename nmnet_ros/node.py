@@ -50,6 +50,8 @@ PARAMS: dict[str, tuple] = {
     "detector": (DEFAULT_DETECTOR, "local feature frames: hessian-affine-fast (batched, default), hessian-affine "
                  "(kornia reference, ~1 s/frame), sift (similarity frames)", tuple(DETECTORS)),
     "max_keypoints": (2000, "Hessian-affine keypoints per frame", (100, 8000)),
+    "resize_width": (0, "frames wider than this many pixels are downscaled to it before detection (aspect kept, K scaled); "
+                        "0 = full resolution. Published matches stay in the image's own pixels", (0, 20000)),
     "k": (8, "compatibility neighbours per correspondence (the shipped network is trained with 8)", (2, 16)),
     "score_threshold": (-1.0, "NM-Net inlier probability above which a match is published; -1 = the threshold "
                               "calibrated on validation and stored with the weights", (-1.0, 1.0)),
@@ -89,7 +91,8 @@ STARTUP_ONLY = ("qos", "use_compressed", "threads", "fx", "fy", "cx", "cy")
 def frontend_config(p: dict) -> dict:
     """The front end's config for the node's parameter values."""
     return {
-        "detector": p["detector"], "max_keypoints": p["max_keypoints"], "selector": SELECTORS[p["pose_estimator"]],
+        "detector": p["detector"], "max_keypoints": p["max_keypoints"], "resize_width": p["resize_width"],
+        "selector": SELECTORS[p["pose_estimator"]],
         "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
         "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
         "threshold_px": p["pose_threshold_px"], "refine_iterations": p["pose_refine_iterations"],

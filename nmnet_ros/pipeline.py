@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from .bf16 import PRECISIONS
@@ -31,6 +32,7 @@ from .selectors import Correspondences, Selection, build
 DEFAULT_CONFIG: dict = {
     "detector": DEFAULT_DETECTOR,  # or "hessian-affine" (kornia reference), "sift" (similarity frames)
     "max_keypoints": FEATURE_DEFAULTS["max_keypoints"],
+    "resize_width": 0,  # frames wider than this are downscaled to it before detection (0: as they come)
     "selector": "nmnet+ratio+magsac",  # any method of nmnet_ros.selectors except 'oracle'
     "weights": None,  # NM-Net weights file; None = shipped
     "score_threshold": None,  # None: the threshold calibrated with the weights
@@ -48,7 +50,7 @@ DEFAULT_CONFIG: dict = {
 }
 
 
-DETECTOR_KEYS = ("detector", "max_keypoints")
+DETECTOR_KEYS = ("detector", "max_keypoints")  # resize_width restarts the chain by itself: another frame size
 SELECTOR_CONFIG = ("score_threshold", "k", "threshold_px", "refine_iterations", "precision")  # passed on to selectors.build
 SELECTOR_KEYS = ("selector", "weights", *SELECTOR_CONFIG)
 
@@ -73,6 +75,23 @@ def _check_choices(c: dict) -> None:
     for key, choices in (("match_stage", MATCH_STAGES), ("match_gemm", PRECISIONS)):
         if c[key] not in choices:
             raise ValueError(f"{key} must be one of {', '.join(choices)}, got {c[key]!r}")
+
+
+def downscaled(image: np.ndarray, width: int) -> np.ndarray:
+    """``image`` shrunk to ``width`` pixels wide, aspect kept (area averaging), when wider and ``width`` > 0."""
+    h, w = image.shape[:2]
+    if width <= 0 or w <= width:
+        return image
+    return cv2.resize(image, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
+
+
+def to_frame_pixels(k: np.ndarray, size: tuple[int, int], full: tuple[int, int]) -> np.ndarray:
+    """Keypoints detected at ``size`` in the pixels of the frame as it came (``full``); pixel centres scale, as
+    in :meth:`~nmnet_ros.geometry.Camera.resized`."""
+    if size == full:
+        return k
+    s = np.array([full[0] / size[0], full[1] / size[1]], np.float32)
+    return ((k + 0.5) * s - 0.5).astype(k.dtype)
 
 
 def match_first(detect_ms: float, match_ms: float, rest_ms: float) -> bool:
@@ -105,8 +124,9 @@ class Prepared:
     """A frame after the first stage: its features, and its matches to the frame prepared before it."""
 
     feats: Features
-    size: tuple[int, int]  # (width, height)
+    size: tuple[int, int]  # (width, height) detected on
     timings_ms: dict[str, float]
+    full: tuple[int, int] = (0, 0)  # (width, height) of the frame as it came (larger when resize_width shrank it)
     matches: Matches | None = None
     against: Features | None = None  # the features ``matches`` were made against
     match_key: tuple = ()  # the matching settings they were made with
@@ -123,7 +143,7 @@ class Frontend:
         self.detector = _detector(c)
         self.select = _selector(c)
         warm_up_matching()  # like the detector's and NM-Net's kernels: compiled before the first frame
-        self.prev: tuple[float, Features, tuple[int, int]] | None = None
+        self.prev: tuple[float, Features, tuple[int, int], tuple[int, int]] | None = None  # stamp, features, sizes
         self._last_prepared: Prepared | None = None  # the first stage's own previous frame
         self._cost_ms: dict[str, float] = {}  # running means of the stages' parts, for match_stage: auto
 
@@ -179,8 +199,10 @@ class Frontend:
     def prepare(self, image: np.ndarray) -> Prepared:
         """First stage: detect, then match to the frame prepared before this one (when of the same size)."""
         t = time.perf_counter()
-        p = Prepared(self.detect(image), (image.shape[1], image.shape[0]), {})
-        p.timings_ms["detect"] = 1000 * (time.perf_counter() - t)
+        full = (image.shape[1], image.shape[0])
+        image = downscaled(image, self.config["resize_width"])
+        p = Prepared(self.detect(image), (image.shape[1], image.shape[0]), {}, full)
+        p.timings_ms["detect"] = 1000 * (time.perf_counter() - t)  # with the downscaling, if any
         self._note_cost("detect", p.timings_ms["detect"])
         last, self._last_prepared = self._last_prepared, p
         if last is not None and last.size == p.size and self._match_in_first_stage():
@@ -199,10 +221,10 @@ class Frontend:
             raise RuntimeError("Frontend has no camera: set .camera (from CameraInfo or parameters) first")
         feats, size = p.feats, p.size
         timings = {**(timings or {}), **p.timings_ms}
-        prev, self.prev = self.prev, (stamp, feats, size)
+        prev, self.prev = self.prev, (stamp, feats, size, p.full)
         if prev is None:
             return FrameResult(stamp, "first_frame", timings_ms=timings, num_keypoints=len(feats))
-        if prev[2] != size:
+        if prev[2:] != (size, p.full):
             return FrameResult(stamp, "size_changed", timings_ms=timings, num_keypoints=len(feats))
         if stamp < prev[0] - self.config["time_jump_s"]:
             return FrameResult(stamp, "time_jump", timings_ms=timings, num_keypoints=len(feats))
@@ -210,13 +232,13 @@ class Frontend:
         fits = p.against is prev[1] and p.match_key == self._match_key()
         m = p.matches if fits else self._match(prev[1], feats, timings)
         k0, k1 = prev[1].keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
-        base = dict(k0=k0, k1=k1, timings_ms=timings, num_keypoints=len(feats),
-                    scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool))
+        cam = self.camera if size == p.full else self.camera.resized(*size, p.full)
+        base = dict(k0=to_frame_pixels(k0, size, p.full), k1=to_frame_pixels(k1, size, p.full), timings_ms=timings,
+                    num_keypoints=len(feats), scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool))
         if len(m) < c["min_matches"]:
             return FrameResult(stamp, "too_few_matches", **base)
         corr = Correspondences(k0, k1, prev[1].frames[m.idx[:, 0]], feats.frames[m.idx[:, 1]],
-                               self.camera.normalize(k0), self.camera.normalize(k1), m.ratio, m.mutual,
-                               self.camera.focal, size, size)
+                               cam.normalize(k0), cam.normalize(k1), m.ratio, m.mutual, cam.focal, size, size)
         t = time.perf_counter()
         sel = self.select(corr)
         timings["select+pose"] = 1000 * (time.perf_counter() - t)
@@ -225,7 +247,7 @@ class Frontend:
         base["mask"] = sel.mask
         if sel.mask.sum() < c["min_matches"]:
             return FrameResult(stamp, "too_few_matches", **base)
-        flow = np.median(np.linalg.norm(k1[sel.mask] - k0[sel.mask], axis=1))
+        flow = np.median(np.linalg.norm(k1[sel.mask] - k0[sel.mask], axis=1))  # in the pixels detected on
         if flow < c["static_flow_px"]:
             return FrameResult(stamp, "no_motion", **base)
         if sel.pose is None:

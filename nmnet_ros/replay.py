@@ -258,6 +258,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--selector", default="nmnet+ratio+magsac", help="correspondence selector (see nmnet eval)")
     p.add_argument("--detector", default="hessian-affine-fast", choices=sorted(DETECTORS), help="local feature frames")
     p.add_argument("--max-keypoints", type=int, default=2000)
+    p.add_argument("--resize-width", type=int, default=0, help="downscale frames wider than this before detection "
+                   "(the node's resize_width; 0: full resolution)")
     p.add_argument("--precision", default=SELECTOR_DEFAULTS["precision"], choices=PRECISIONS,
                    help="NM-Net arithmetic (the node's nmnet_precision; auto: bfloat16 where the CPU has it natively)")
     p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
@@ -281,12 +283,13 @@ def main(args: argparse.Namespace) -> int:
     runs, interrupted = [], False
     try:
         cfg = {"selector": args.selector, "max_keypoints": args.max_keypoints, "detector": args.detector,
-               "precision": args.precision}
+               "precision": args.precision, "resize_width": args.resize_width}
         run, n, overlay = process_bag(args.bag, out, cfg, args.gt, args.debug_images, not args.no_progress, topics,
                                       camera=camera, rectified=args.rectified)
         runs.append(run)
         if args.baseline:
-            base, _, _ = process_bag(args.bag, None, {**BASELINE, "max_keypoints": args.max_keypoints}, args.gt,
+            base, _, _ = process_bag(args.bag, None, {**BASELINE, "max_keypoints": args.max_keypoints,
+                                                      "resize_width": args.resize_width}, args.gt,
                                      progress=not args.no_progress, topics=topics, camera=camera,
                                      rectified=args.rectified)
             base.name = "SIFT+ratio+MAGSAC++"
@@ -335,7 +338,8 @@ def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None =
     try:
         stats = play_live(args.bag, out, args.rate, ["-p", f"max_keypoints:={args.max_keypoints}", "-p", f"detector:={args.detector}",
                                                      "-p", f"rectified:={str(args.rectified).lower()}",
-                                                     "-p", f"nmnet_precision:={args.precision}"], camera=camera)
+                                                     "-p", f"nmnet_precision:={args.precision}",
+                                                     "-p", f"resize_width:={args.resize_width}"], camera=camera)
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130

@@ -43,3 +43,15 @@ def test_bench_threads_option_sets_and_restores_the_thread_counts(capsys):
     assert (torch.get_num_threads(), cv2.getNumThreads()) == before
     assert main(["bench", "--threads", "0"]) == 2
     assert "--threads must be a whole number >= 1, got 0" in capsys.readouterr().err
+
+
+def test_hd_bench_times_full_size_against_resize_width():
+    """The high-resolution line: 1920x1080 frames at full size and downscaled by resize_width, detection and rate."""
+    from nmnet_ros.bench import bench_hd
+
+    it, _ = read_frames(BagReader(SAMPLE_BAG))
+    frames = [f for _, f in zip(range(3), it, strict=False)]
+    hd = bench_hd([f.image for f in frames], frames[0].camera, n=500)
+    assert hd["size"] == [1920, 1080] and hd["resize_width"] == 960
+    assert hd["detect_ms_0"] > 0 and hd["detect_ms_960"] > 0  # numbers, not speed (the bench prints the ratio)
+    assert hd["hz_0"] > 0 and hd["hz_960"] > 0

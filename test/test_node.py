@@ -473,15 +473,20 @@ def set_params(peer: Peer, values: dict) -> list:
     return fut.result().results
 
 
-def published_scores(peer: Peer, stamp: float) -> np.ndarray:
-    """The score column of the ~/matches cloud published for the frame at ``stamp``."""
+def published_matches(peer: Peer, stamp: float) -> np.ndarray:
+    """The ~/matches cloud published for the frame at ``stamp``: rows u0 v0 u1 v1 score."""
     assert peer.wait_result_for(stamp), f"no matches published for the frame at {stamp}"
     m = next(m for s, (_, m) in zip(peer.stamps(peer.matches), peer.matches, strict=True) if abs(s - stamp) < 1e-6)
-    return np.frombuffer(bytes(m.data), np.float32).reshape(-1, 5)[:, 4]
+    return np.frombuffer(bytes(m.data), np.float32).reshape(-1, 5)
+
+
+def published_scores(peer: Peer, stamp: float) -> np.ndarray:
+    """The score column of the ~/matches cloud published for the frame at ``stamp``."""
+    return published_matches(peer, stamp)[:, 4]
 
 
 def test_parameters_change_while_running(ros, tmp_path):
-    """`ros2 param set` on a running node: a new NM-Net cut and pose estimator act from the next frame;
+    """`ros2 param set` on a running node: a new NM-Net cut, pose estimator and resize_width act from the next frame;
     a bad choice, a missing weights file, a start-up-only parameter, a value out of range and one of the
     wrong type are refused with the reason,
     and the node keeps its settings and keeps running."""
@@ -516,6 +521,12 @@ def test_parameters_change_while_running(ros, tmp_path):
                                                                         "pose_threshold_px": 0.15, "max_keypoints": 1000,
                                                                         "pose_estimator": "classic", "nmnet_precision": "auto"}
         assert np.all(frame(44, 5.0) == 1.0)  # still running, still classic
+        # half-size detection: another frame size restarts the chain, then matches come in the frames' own pixels
+        assert all(r.successful for r in set_params(peer, {"resize_width": 613}))
+        assert len(frame(45, 6.0)) == 0 and no_estimate(peer.pose_for(6.0))
+        frame(46, 7.0)
+        uv = published_matches(peer, 7.0)
+        assert len(uv) > 50 and uv[:, [0, 2]].max() > 900 and not no_estimate(peer.pose_for(7.0))
     finally:
         peer.close()
         node.stop()

@@ -353,3 +353,37 @@ def test_robust_fit_takes_indices_and_a_separate_polish_set(pairs):
         order = np.flatnonzero(keep)[np.argsort(-c.ratio[keep])]  # worst first: a bad order for PROSAC
         prosac_differs.append(not np.array_equal(robust_fit(c, order, "magsac", cfg, prosac=True).mask, by_mask.mask))
     assert any(prosac_differs)
+
+
+def test_frames_wider_than_resize_width_are_detected_downscaled_and_reported_in_their_own_pixels():
+    """A 2x camera (2452x740, K scaled) with resize_width 1226: detection on the downscaled frame, the pose as at the
+    native size, and the matches in the input frame's pixels (on the true epipolar lines of the 2x camera).
+    A frame no wider than resize_width is untouched; a new resize_width restarts the chain (another frame size)."""
+    import cv2
+
+    from nmnet_ros.geometry import essential_from_pose, sym_epipolar_sq
+    from nmnet_ros.pipeline import Frontend
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    (w, h), cfg = (seq.camera.width, seq.camera.height), {"selector": "ratio+magsac"}
+    native = [seq.image(i) for i in (120, 121)]
+    big = [cv2.resize(im, (2 * w, 2 * h), interpolation=cv2.INTER_LINEAR) for im in native]
+    cam2 = seq.camera.resized(2 * w, 2 * h)
+    R_gt, t_gt = seq.relative_pose(120, 121)
+
+    fe = Frontend(cam2, {**cfg, "resize_width": w})
+    r = [fe.process(im, 0.1 * i) for i, im in enumerate(big)][1]
+    assert r.status == "ok" and fe.prev[2:] == ((w, h), (2 * w, 2 * h))
+    assert max(pose_error_deg(r.pose, R_gt, t_gt)) < 1.0
+    sel = r.mask
+    assert r.k1[sel, 0].max() > 1.5 * w and r.k1[sel, 1].max() > 1.5 * h  # the 2x frame's pixels
+    d = np.sqrt(sym_epipolar_sq(essential_from_pose(R_gt, t_gt), cam2.normalize(r.k0[sel]), cam2.normalize(r.k1[sel])))
+    print(f"median epipolar distance {np.median(d) * cam2.focal:.2f} px of the 2x frame")
+    assert np.median(d) * cam2.focal < 2.0  # ~1 px of the downscaled frame, in 2x pixels
+
+    plain, wide = Frontend(seq.camera, cfg), Frontend(seq.camera, {**cfg, "resize_width": 2 * w})
+    a, b = ([f.process(im, 0.1 * i) for i, im in enumerate(native)][1] for f in (plain, wide))
+    np.testing.assert_array_equal(a.k0, b.k0)
+    np.testing.assert_array_equal(a.k1, b.k1)
+    wide.reconfigure({"resize_width": w // 2})
+    assert wide.process(native[0], 0.3).status == "size_changed"
