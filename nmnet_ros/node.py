@@ -406,7 +406,7 @@ class NMNetNode(Node):
         if s.processed == 1:  # the node's first frame: nothing to relate it to; every later one publishes (see posemsg)
             return
         if r.status == "too_few_matches":
-            self._warn("too_few_matches", f"only {r.num_selected} matches selected of {len(r.k0)} (need 8): no pose")
+            self._warn("too_few_matches", f"only {r.num_selected} matches selected of {len(r.k0)} (need 8): relative_pose says no estimate")
         elif r.status == "no_motion":
             self._warn("no_motion", "camera is not moving (median flow below static_flow_px): publishing identity pose",
                        period=30.0)

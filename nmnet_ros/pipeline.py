@@ -126,7 +126,7 @@ class Prepared:
     feats: Features
     size: tuple[int, int]  # (width, height) detected on
     timings_ms: dict[str, float]
-    full: tuple[int, int] = (0, 0)  # (width, height) of the frame as it came (larger when resize_width shrank it)
+    full: tuple[int, int]  # (width, height) of the frame as it came (larger when resize_width shrank it)
     matches: Matches | None = None
     against: Features | None = None  # the features ``matches`` were made against
     match_key: tuple = ()  # the matching settings they were made with
