@@ -63,7 +63,7 @@ def _selector(c: dict) -> Callable[[Correspondences], Selection]:
     return build(c["selector"], {key: c[key] for key in SELECTOR_CONFIG}, {"nmnet": c["weights"]} if c["weights"] else None)
 
 
-# statuses of a frame that starts a new chain: nothing to relate it to, no pose
+# statuses of a frame that starts a new chain: nothing to relate it to (its relative_pose says "no estimate")
 RESTARTS = ("first_frame", "size_changed", "time_jump")
 
 
