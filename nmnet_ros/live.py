@@ -25,7 +25,6 @@ from .dds import LARGE_FRAMES_PROFILE
 from .geometry import Camera, pose_auc
 from .imgconv import IMAGE_TYPES
 from .mcap_out import McapOutput
-from .pipeline import FrameResult
 from .posemsg import estimate_of_message
 from .replay import frame_error
 
@@ -188,8 +187,7 @@ def score_recording(path: Path, bag: Path) -> dict:
     for (t_prev, _), (t_cur, msg) in zip(poses, poses[1:], strict=False):
         o, p = msg.pose.pose.orientation, msg.pose.pose.position
         status, pose = estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance)
-        r = FrameResult(1e-9 * t_cur, "pose_failed" if status == "no_estimate" else status, pose=pose)
-        if (err := frame_error(r, gt.get(t_prev), gt.get(t_cur))) is not None:
+        if (err := frame_error(status, pose, gt.get(t_prev), gt.get(t_cur))) is not None:
             errs.append(err)
     e = np.array(errs) if errs else np.zeros((0, 2))
     aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3

@@ -24,13 +24,12 @@ from .caminfo import fit_camera
 from .datasets import read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
-from .geometry import Camera, pose_auc, pose_error_deg, relative_pose
+from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
 from .pipeline import RESTARTS, FrameResult, Frontend
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
-FAILED = ("too_few_matches", "pose_failed")
 STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
 
 
@@ -42,19 +41,21 @@ def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
     raise _Terminated()
 
 
-def frame_error(r: FrameResult, T_prev: np.ndarray | None, T_cur: np.ndarray | None) -> tuple[float, float] | None:
-    """(rot, trans) error of one result; failures count as 180; None when not scorable."""
-    if T_prev is None or T_cur is None or r.status in RESTARTS:
+def frame_error(status: str, pose: PoseEstimate | None, T_prev: np.ndarray | None, T_cur: np.ndarray | None
+                ) -> tuple[float, float] | None:
+    """(rot, trans) error of one frame's result (a FrameResult's status and pose, or what a recorded
+    relative_pose says: ``no_estimate`` too); failures count as 180; None when not scorable."""
+    if T_prev is None or T_cur is None or status in RESTARTS:
         return None
     R, t = relative_pose(T_prev, T_cur)
     moving = np.linalg.norm(t) > STATIC_GT_M
-    if r.status == "no_motion":
+    if status == "no_motion":
         return None if not moving else (180.0, 180.0)
-    if r.status in FAILED or r.pose is None:
+    if status != "ok" or pose is None:
         return (180.0, 180.0)
     if not moving:
         return None
-    return pose_error_deg(r.pose, R, t)
+    return pose_error_deg(pose, R, t)
 
 
 class Run:
@@ -133,7 +134,7 @@ def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, g
                 T = gt_tum[1][int(np.argmin(np.abs(gt_tum[0] - f.stamp)))]
             r = fe.process(f.image, f.stamp)
             run.results.append(r)
-            err = frame_error(r, prev_gt, T)
+            err = frame_error(r.status, r.pose, prev_gt, T)
             if err is not None:
                 run.errors.append(err)
                 run.err_stamps.append(f.stamp)

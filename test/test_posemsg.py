@@ -42,3 +42,16 @@ def test_a_frame_without_an_estimate_says_so(status):
 
 def test_ok_without_a_pose_is_no_estimate():
     assert estimate_of_message(*relative_pose_of_current("ok", None, 50))[0] == "no_estimate"
+
+
+def test_a_recorded_no_estimate_scores_as_a_failure_and_an_estimate_by_its_error():
+    """The live replay scores messages read back with the offline replay's frame_error."""
+    from nmnet_ros.replay import frame_error
+
+    T0, T1 = np.eye(4), np.eye(4)
+    T1[:3, 3] = [0.0, 0.0, 1.0]  # moved 1 m forward: x_cur = x_prev - (0, 0, 1)
+    q, p, cov = relative_pose_of_current("pose_failed", None, 5)
+    assert frame_error(*estimate_of_message(q, p, cov), T0, T1) == (180.0, 180.0)
+    good = PoseEstimate(np.eye(3), np.array([0.0, 0.0, -1.0]), np.zeros((3, 3)), np.zeros(0, bool))
+    rot, trans = frame_error(*estimate_of_message(*relative_pose_of_current("ok", good, 300)), T0, T1)
+    assert rot < 1e-6 and trans < 1e-6
