@@ -71,10 +71,12 @@ MATCH_STAGES = ("auto", "first", "second")
 
 
 def _check_choices(c: dict) -> None:
-    """ValueError for a matching setting outside its choices (before any frame, not on the first match)."""
+    """ValueError for a setting the front end cannot run with (before any frame, not on the first one)."""
     for key, choices in (("match_stage", MATCH_STAGES), ("match_gemm", PRECISIONS)):
         if c[key] not in choices:
             raise ValueError(f"{key} must be one of {', '.join(choices)}, got {c[key]!r}")
+    if not isinstance(c["resize_width"], (int, np.integer)) or c["resize_width"] < 0:
+        raise ValueError(f"resize_width must be a width in pixels >= 0 (0: full resolution), got {c['resize_width']!r}")
 
 
 def downscaled(image: np.ndarray, width: int) -> np.ndarray:
@@ -205,7 +207,7 @@ class Frontend:
         p.timings_ms["detect"] = 1000 * (time.perf_counter() - t)  # with the downscaling, if any
         self._note_cost("detect", p.timings_ms["detect"])
         last, self._last_prepared = self._last_prepared, p
-        if last is not None and last.size == p.size and self._match_in_first_stage():
+        if last is not None and (last.size, last.full) == (p.size, p.full) and self._match_in_first_stage():
             p.match_key, p.against = self._match_key(), last.feats
             p.matches = self._match(last.feats, p.feats, p.timings_ms)
         return p

@@ -387,3 +387,9 @@ def test_frames_wider_than_resize_width_are_detected_downscaled_and_reported_in_
     np.testing.assert_array_equal(a.k1, b.k1)
     wide.reconfigure({"resize_width": w // 2})
     assert wide.process(native[0], 0.3).status == "size_changed"
+    for bad in (-1, 12.5):  # `nmnet replay --resize-width -1`, a float from a script: refused, named, nothing changed
+        with pytest.raises(ValueError, match="resize_width must be a width in pixels"):
+            wide.reconfigure({"resize_width": bad})
+        with pytest.raises(ValueError, match="resize_width"):
+            Frontend(seq.camera, {"resize_width": bad})
+    assert wide.config["resize_width"] == w // 2
