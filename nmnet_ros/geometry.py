@@ -20,6 +20,11 @@ class CameraError(ValueError):
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
 
 
+def scale_pixels(pts: np.ndarray, sx: float, sy: float) -> np.ndarray:
+    """Pixel positions (..., 2) in the image resized by (sx, sy): pixel centres scale, u' + 0.5 = (u + 0.5) * s."""
+    return (np.asarray(pts, np.float64) + 0.5) * np.array([sx, sy]) - 0.5
+
+
 @dataclass
 class Camera:
     """Pinhole camera with optional distortion: plumb_bob / rational_polynomial (OpenCV's k1 k2 p1 p2 k3 ...)
@@ -77,10 +82,9 @@ class Camera:
             raise CameraError("the camera has no image size to resize from")
         sx, sy = width / w0, height / h0
         K = self.K.copy()
-        K[0] *= sx
-        K[1] *= sy
-        K[0, 2] += 0.5 * (sx - 1)
-        K[1, 2] += 0.5 * (sy - 1)
+        K[0, :2] *= sx
+        K[1, :2] *= sy
+        K[:2, 2] = scale_pixels(self.K[:2, 2], sx, sy)  # the principal point is a pixel position
         return Camera(K, self.dist, width, height, self.model)
 
     def distortion_for_msg(self) -> np.ndarray:

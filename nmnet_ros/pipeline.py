@@ -23,7 +23,7 @@ from .bf16 import PRECISIONS
 from .detectors import DEFAULT_DETECTOR, make_detector
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Detector, Features
-from .geometry import Camera, PoseEstimate
+from .geometry import Camera, PoseEstimate, scale_pixels
 from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
@@ -88,12 +88,8 @@ def downscaled(image: np.ndarray, width: int) -> np.ndarray:
 
 
 def to_frame_pixels(k: np.ndarray, size: tuple[int, int], full: tuple[int, int]) -> np.ndarray:
-    """Keypoints detected at ``size`` in the pixels of the frame as it came (``full``); pixel centres scale, as
-    in :meth:`~nmnet_ros.geometry.Camera.resized`."""
-    if size == full:
-        return k
-    s = np.array([full[0] / size[0], full[1] / size[1]], np.float32)
-    return ((k + 0.5) * s - 0.5).astype(k.dtype)
+    """Keypoints detected at ``size`` in the pixels of the frame as it came (``full``)."""
+    return k if size == full else scale_pixels(k, full[0] / size[0], full[1] / size[1]).astype(k.dtype)
 
 
 def match_first(detect_ms: float, match_ms: float, rest_ms: float) -> bool:
