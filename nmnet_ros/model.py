@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -19,7 +20,19 @@ DEFAULT_CONFIG: dict = {
     "k": 8,
     "widths": (32, 32, 64, 64, 128, 128, 256, 256),
     "neighbors": "compatibility",  # or "spatial" for NM-Net-sp
+    "ratio_input": False,  # True: a fifth input per match, its descriptor distance ratio (not in the paper)
 }
+
+
+def input_width(config: dict) -> int:
+    """Inputs per correspondence: the paper's 4 coordinates, plus the ratio when ``ratio_input``."""
+    return 5 if config.get("ratio_input", False) else 4
+
+
+def network_input(x0: np.ndarray, x1: np.ndarray, ratio: np.ndarray, config: dict) -> torch.Tensor:
+    """(N, input_width) float32 input rows: normalised (x, y, x', y') and, when the config asks, the ratio."""
+    cols = [x0, x1, ratio[:, None]] if config.get("ratio_input", False) else [x0, x1]
+    return torch.from_numpy(np.concatenate(cols, 1).astype(np.float32))
 
 
 def _norm_act(c: int, act: bool = True) -> nn.Sequential:
@@ -55,12 +68,12 @@ class NMNet(nn.Module):
         self.config = {**DEFAULT_CONFIG, **(config or {})}
         self.score_threshold = 0.5  # probability cut; load_model sets the calibrated one
         w = list(self.config["widths"])
-        self.embed = nn.Sequential(nn.Conv2d(1, w[0], (1, 4)), _norm_act(w[0]))
+        self.embed = nn.Sequential(nn.Conv2d(1, w[0], (1, input_width(self.config))), _norm_act(w[0]))
         self.blocks = nn.Sequential(*[ResBlock(a, b) for a, b in zip([w[0]] + w[:-1], w, strict=True)])
         self.head = nn.Sequential(nn.Conv2d(w[-1], w[-1], 1), _norm_act(w[-1]), nn.Conv2d(w[-1], 1, 1))
 
     def forward(self, corr: torch.Tensor, neighbors: torch.Tensor) -> torch.Tensor:
-        """corr (B,N,4) normalised coordinates, neighbors (B,N,k) indices -> logits (B,N)."""
+        """corr (B,N,4 or 5) rows of ``network_input``, neighbors (B,N,k) indices -> logits (B,N)."""
         b, n, _ = corr.shape
         k = neighbors.shape[-1]
         f = self.embed(corr[:, None])  # (B,C,N,1)

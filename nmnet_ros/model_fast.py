@@ -187,7 +187,7 @@ class _Block:
 
 
 class FastNMNet:
-    """Inference-only NM-Net built from a trained :class:`NMNet`; call with (N,4) coords, (N,k) neighbours.
+    """Inference-only NM-Net built from a trained :class:`NMNet`; call with (N,4|5) inputs, (N,k) neighbours.
 
     ``dtype``: what the blocks' GEMMs and activations run in; None = the model's own (exact),
     ``torch.bfloat16`` = the faster approximation (module docstring). Embedding, normalisation
@@ -198,7 +198,7 @@ class FastNMNet:
         model = model.eval()
         self.config = model.config
         self.score_threshold = model.score_threshold
-        self.we = model.embed[0].weight.detach()[:, 0, 0, :].t().contiguous()  # (4, C)
+        self.we = model.embed[0].weight.detach()[:, 0, 0, :].t().contiguous()  # (inputs, C)
         self.dtype = dtype or self.we.dtype
         self.ne = _fold_norm(model.embed[1])
         self.blocks = [_Block(b, self.dtype) for b in model.blocks]
@@ -207,13 +207,13 @@ class FastNMNet:
         self.wo = model.head[2].weight.detach()[:, :, 0, 0].t().contiguous()  # (C, 1)
         self.bo = model.head[2].bias.detach().clone()
         k = self.config["k"]  # compile (or load from numba's disk cache) the kernel now, not on the first frame
-        self(torch.zeros(k, 4, dtype=self.we.dtype), torch.arange(k).repeat(k, 1))
+        self(torch.zeros(k, self.we.shape[0], dtype=self.we.dtype), torch.arange(k).repeat(k, 1))
 
     @torch.inference_mode()
     def __call__(self, corr: torch.Tensor, neighbors: torch.Tensor) -> torch.Tensor:
-        """corr (N,4) float32, neighbors (N,k) int64 (itself first) -> logits (N,)."""
+        """corr (N,4 or 5) float32 (``model.network_input``), neighbors (N,k) int64 (itself first) -> logits (N,)."""
         real, k = neighbors.shape
-        f = _norm(corr @ self.we, self.ne, relu=True).to(self.dtype)  # (N, C): the (1,4) embedding is a linear map
+        f = _norm(corr @ self.we, self.ne, relu=True).to(self.dtype)  # (N, C): the embedding is a linear map
         n = real if self.dtype == self.we.dtype else -(-real // PAD) * PAD
         if n > real:  # padding correspondences (rows of the first one's features), never counted by the norms
             neighbors = torch.cat([neighbors, neighbors.new_zeros(n - real, k)])

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from .geometry import PoseEstimate, estimate_essential, recover_pose, refine_pose, weighted_eight_point
-from .model import NMNet, load_model
+from .model import NMNet, load_model, network_input
 from .model_fast import FastNMNet, resolve_precision
 from .neighbors import mine_neighbors, warm_up
 
@@ -104,7 +104,7 @@ def nmnet_logits(model: NMNet | FastNMNet, c: Correspondences, neighbors: np.nda
         return np.zeros(0, np.float32)
     nb = neighbors if neighbors is not None else mine_neighbors(model.config["neighbors"], c.k0, c.a0, c.k1, c.a1,
                                                                  model.config["k"])
-    x = torch.from_numpy(np.concatenate([c.x0, c.x1], 1).astype(np.float32))
+    x = network_input(c.x0, c.x1, c.ratio, model.config)
     nbt = torch.from_numpy(np.ascontiguousarray(nb, np.int64))
     if isinstance(model, FastNMNet):
         return model(x, nbt).numpy()

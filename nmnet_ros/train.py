@@ -30,7 +30,7 @@ from .datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import apply_homography, homography_jacobian
 from .metrics import prf
-from .model import NMNet, WeightsError, load_model
+from .model import NMNet, WeightsError, load_model, network_input
 from .neighbors import mine_neighbors
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs
 
@@ -54,6 +54,7 @@ DEFAULT_CONFIG: dict = {
     "thin_inliers": 0.0,  # probability that a sample keeps only part of its inliers (see ``sample_correspondences``)
     "turn_deg": 0.0,  # turn the second camera about its centre by up to this many degrees (see ``turn_camera``); 0 = off
     "balance": 0.0,  # 0 = every training pair equally often; 1 = every training folder equally often (see ``pair_weights``)
+    "ratio_input": False,  # give the network each match's descriptor distance ratio as a fifth input (see ``_init_model``)
 }
 
 MAX_ROLL_DEG = 10.0  # per-image camera roll drawn from +-this when augmenting
@@ -185,19 +186,21 @@ def _roll(angle: float, mirror: bool) -> np.ndarray:
     return np.array([[c, -s], [s, c]]) @ np.diag([-1.0 if mirror else 1.0, 1.0])
 
 
-def network_input(pair: PairData, neighbor_kind: str, k: int, sel: np.ndarray | None = None,
+def pair_input(pair: PairData, config: dict, sel: np.ndarray | None = None,
                   augmentation: tuple[bool, bool, float, float] | None = None,
                   turned: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """(1,N,4) normalised coordinates and (1,N,k) neighbour indices of a pair (optionally turned, a subset, augmented).
+    """(1,N,4|5) network input and (1,N,k) neighbour indices of a pair (optionally turned, a subset, augmented).
+
+    ``config``: the model's (neighbour kind, k, whether the ratio is an input).
 
     ``turned``: the second view's (k1, a1, x1) from ``turn_camera``, for every match of the pair.
     """
     x0, x1 = pair.normalized()
-    k0, k1, a0, a1 = pair.k0, pair.k1, pair.a0, pair.a1
+    k0, k1, a0, a1, ratio = pair.k0, pair.k1, pair.a0, pair.a1, pair.matches.ratio
     if turned is not None:
         k1, a1, x1 = turned
     if sel is not None:
-        x0, x1, k0, k1, a0, a1 = (v[sel] for v in (x0, x1, k0, k1, a0, a1))
+        x0, x1, k0, k1, a0, a1, ratio = (v[sel] for v in (x0, x1, k0, k1, a0, a1, ratio))
     if augmentation is not None:
         swap, mirror, roll0, roll1 = augmentation
         if swap:
@@ -207,9 +210,8 @@ def network_input(pair: PairData, neighbor_kind: str, k: int, sel: np.ndarray | 
         x0, x1 = x0 @ M0.T, x1 @ M1.T
         k0, k1 = (k0 - c) @ M0.T + c, (k1 - c) @ M1.T + c
         a0, a1 = M0 @ a0, M1 @ a1
-    nb = mine_neighbors(neighbor_kind, k0, a0, k1, a1, k)
-    x = torch.from_numpy(np.concatenate([x0, x1], 1).astype(np.float32))[None]
-    return x, torch.from_numpy(nb)[None]
+    nb = mine_neighbors(config["neighbors"], k0, a0, k1, a1, config["k"])
+    return network_input(x0, x1, ratio, config)[None], torch.from_numpy(nb)[None]
 
 
 def balanced_bce(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
@@ -224,7 +226,7 @@ THRESHOLDS = tuple(float(t) for t in np.round(np.arange(0.05, 1.0, 0.05), 2))
 
 
 @torch.inference_mode()
-def validate(model: NMNet, pairs: list[PairData], neighbor_kind: str, threshold: float = 0.5) -> dict:
+def validate(model: NMNet, pairs: list[PairData], threshold: float = 0.5) -> dict:
     """Mean per-pair precision/recall/F (percent) of probability > threshold against the labels.
 
     Also the F at every threshold of THRESHOLDS (``f1_by_threshold``), to calibrate the
@@ -234,7 +236,7 @@ def validate(model: NMNet, pairs: list[PairData], neighbor_kind: str, threshold:
     dev = next(model.parameters()).device
     probs = []
     for p in pairs:
-        x, nb = network_input(p, neighbor_kind, model.config["k"])
+        x, nb = pair_input(p, model.config)
         probs.append(torch.sigmoid(model(x.to(dev), nb.to(dev))[0]).cpu().numpy())
     stats = [prf(pr > threshold, p.labels) for pr, p in zip(probs, pairs, strict=True)]
     out = {k: float(np.mean([s[k] for s in stats])) for k in ("precision", "recall", "f1")}
@@ -243,14 +245,14 @@ def validate(model: NMNet, pairs: list[PairData], neighbor_kind: str, threshold:
     return out
 
 
-def calibrate(out_dir: Path, val_pairs: list[PairData], kind: str, log: Callable[[str], None] = print) -> dict:
+def calibrate(out_dir: Path, val_pairs: list[PairData], log: Callable[[str], None] = print) -> dict:
     """Store in best.pt the score threshold that maximises validation F; returns its metrics."""
     ck = torch.load(out_dir / "best.pt", map_location="cpu", weights_only=False)
     model = NMNet(ck["config"])
     model.load_state_dict(ck["state_dict"])
-    f_by_t = validate(model, val_pairs, kind)["f1_by_threshold"]
+    f_by_t = validate(model, val_pairs)["f1_by_threshold"]
     best_t = max(f_by_t, key=f_by_t.get)
-    val = validate(model, val_pairs, kind, best_t)
+    val = validate(model, val_pairs, best_t)
     val.pop("f1_by_threshold")
     ck.update(score_threshold=float(best_t), val_calibrated=val)
     torch.save(ck, out_dir / "best.pt")
@@ -266,8 +268,13 @@ def _git_commit() -> str:
         return "unknown"
 
 
-def _init_model(path: Path, kind: str) -> NMNet:
-    """The checkpoint to fine-tune from (``load_model``'s checks), refused when trained for other neighbours."""
+def _init_model(path: Path, kind: str, ratio_input: bool) -> NMNet:
+    """The checkpoint to fine-tune from (``load_model``'s checks), refused when trained for other neighbours.
+
+    ``ratio_input`` on a checkpoint trained without it widens the embedding by a zero column: the
+    network starts as the checkpoint's, and training decides how much the ratio counts. The reverse
+    (dropping an input the checkpoint was trained with) is refused.
+    """
     try:
         model = load_model(path)
     except WeightsError as e:
@@ -275,7 +282,17 @@ def _init_model(path: Path, kind: str) -> NMNet:
     if model.config["neighbors"] != kind:
         raise WeightsError(f"--init {path}: trained with {model.config['neighbors']} neighbours; it does not fit "
                            f"this --variant ({kind} neighbours)")
-    return model
+    if model.config["ratio_input"] == ratio_input:
+        return model
+    if not ratio_input:
+        raise WeightsError(f"--init {path}: trained with the ratio as an input; add --ratio-input")
+    wide = NMNet({**model.config, "ratio_input": True})
+    state = model.state_dict()
+    w = state["embed.0.weight"]
+    state["embed.0.weight"] = torch.cat([w, torch.zeros_like(w[..., :1])], -1)
+    wide.load_state_dict(state)
+    wide.score_threshold = model.score_threshold
+    return wide.eval()
 
 
 def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: dict | None = None,
@@ -308,10 +325,10 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     out_dir = Path(out_dir)
     resuming = resume and (out_dir / "last.pt").is_file()  # --init only seeds a run's first start
     if c["init"] is not None and not resuming:
-        model = _init_model(Path(c["init"]), kind)  # checked before any features are computed
+        model = _init_model(Path(c["init"]), kind, c["ratio_input"])  # checked before any features are computed
         log(f"initialised from {c['init']}")
     else:
-        model = NMNet({"neighbors": kind})
+        model = NMNet({"neighbors": kind, "ratio_input": c["ratio_input"]})
     cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
     groups = [load_pairs([spec], cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"]) for spec in train_specs]
@@ -351,7 +368,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
                      else rng.choice(len(train_pairs), size=c["batch"], p=weights))
             for pi in drawn:
                 batch.append((train_pairs[pi], *draw_sample(rng, train_pairs[pi], c)))
-            inputs = list(pool.map(lambda b: network_input(b[0], kind, model.config["k"], b[1], b[2], b[3]), batch))
+            inputs = list(pool.map(lambda b: pair_input(b[0], model.config, b[1], b[2], b[3]), batch))
             ys = [torch.from_numpy(b[4].astype(np.float32))[None] for b in batch]
             logits = model(torch.cat([x for x, _ in inputs]).to(device), torch.cat([nb for _, nb in inputs]).to(device))
             loss = balanced_bce(logits, torch.cat(ys).to(device))
@@ -359,7 +376,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
             loss.backward()
             opt.step()
             losses.append(loss.item())
-        val = validate(model, val_pairs, kind)
+        val = validate(model, val_pairs)
         val.pop("f1_by_threshold")
         rec = {"epoch": epoch, "loss": float(np.mean(losses)), **{f"val_{k}": v for k, v in val.items()},
                "epoch_sec": time.time() - t0}
@@ -378,7 +395,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         (out_dir / "history.json").write_text(json.dumps(history, indent=1))
     pool.shutdown()
     summary = {"best_val_f1_at_0.5": best_f, "train_pairs": len(train_pairs), "val_pairs": len(val_pairs),
-               "train_minutes": (time.time() - t_start) / 60, "epochs": c["epochs"], **calibrate(out_dir, val_pairs, kind, log)}
+               "train_minutes": (time.time() - t_start) / 60, "epochs": c["epochs"], **calibrate(out_dir, val_pairs, log)}
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
 
@@ -410,6 +427,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--turn-deg", type=float, default=DEFAULT_CONFIG["turn_deg"], metavar="DEG",
                    help="turn each sample's second camera about its centre by up to DEG degrees (pan/tilt; "
                         "labels recomputed, matches turned out of the image dropped); 0 = off")
+    p.add_argument("--ratio-input", action="store_true",
+                   help="give the network each match's descriptor distance ratio as a fifth input (not in the paper)")
     p.add_argument("--balance", type=float, default=DEFAULT_CONFIG["balance"], metavar="B",
                    help="share of the samples per --train folder: proportional to its pair count ** (1 - B); "
                         "0 = every pair equally often, 1 = every folder equally often")
@@ -426,7 +445,7 @@ def parse_gaps(text: str) -> tuple[int, ...]:
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet train``."""
     keys = ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr", "device", "workers",
-            "detector", "label_threshold", "augment", "thin_inliers", "turn_deg", "balance")
+            "detector", "label_threshold", "augment", "thin_inliers", "turn_deg", "balance", "ratio_input")
     cfg = {k: getattr(args, k) for k in keys}
     cfg["init"] = str(args.init) if args.init else None
     cfg["gaps"] = parse_gaps(args.gaps)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from nmnet_ros.model import NMNet, WeightsError, load_model
+from nmnet_ros.model import NMNet, WeightsError, load_model, network_input
 from nmnet_ros.neighbors import compatibility_neighbors
 
 
@@ -143,3 +143,24 @@ def test_bfloat16_padding_leaves_the_logits_unchanged(monkeypatch):
     unpadded = model(x, nb)
     assert padded.shape == unpadded.shape == (1000,)
     torch.testing.assert_close(padded, unpadded, atol=1e-3, rtol=0)
+
+
+def test_ratio_input_is_a_fifth_input_the_fast_model_runs_too():
+    """``ratio_input`` (not in the paper): the descriptor ratio joins the four coordinates."""
+    from nmnet_ros.model_fast import FastNMNet
+
+    torch.manual_seed(0)
+    model = NMNet({"ratio_input": True}).eval()
+    assert model.embed[0].weight.shape[-1] == 5 and NMNet().embed[0].weight.shape[-1] == 4
+    _, k0, a0, k1, a1 = inputs(300)
+    ratio = np.random.default_rng(2).uniform(0.5, 1.0, 300)
+    x = network_input((k0 - 300) / 500, (k1 - 300) / 500, ratio, model.config)
+    assert x.shape == (300, 5) and np.allclose(x[:, 4].numpy(), ratio)
+    assert network_input(k0, k1, ratio, NMNet().config).shape == (300, 4)
+    nb = torch.from_numpy(compatibility_neighbors(k0, a0, k1, a1))
+    model64 = copy.deepcopy(model).double()
+    with torch.inference_mode():
+        ref64 = model64(x.double()[None], nb[None])[0]
+        other = model(network_input((k0 - 300) / 500, (k1 - 300) / 500, 1.0 - ratio, model.config)[None], nb[None])[0]
+    torch.testing.assert_close(FastNMNet(model64)(x.double(), nb), ref64, atol=1e-9, rtol=0)
+    assert (other.double() - ref64).abs().max() > 1e-3  # the ratio reaches the logits

@@ -11,6 +11,7 @@ from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
 from nmnet_ros.evaluate import add_arguments as eval_args
 from nmnet_ros.geometry import apply_homography, essential_from_pose, sym_epipolar_sq
+from nmnet_ros.model import DEFAULT_CONFIG as MODEL_CONFIG
 from nmnet_ros.model import load_model, weights_dir
 from nmnet_ros.neighbor_study import add_arguments as neighbors_args
 from nmnet_ros.neighbors import mine_neighbors
@@ -22,7 +23,7 @@ from nmnet_ros.train import (
     draw_sample,
     draw_turn,
     load_pairs,
-    network_input,
+    pair_input,
     pair_weights,
     sample_correspondences,
     train,
@@ -162,7 +163,7 @@ def test_augmentation_keeps_the_labels(tmp_path):
     for aug in drawn:
         swap, mirror, roll0, roll1 = aug
         assert max(abs(roll0), abs(roll1)) <= np.radians(10.0)
-        x, _ = network_input(pair, "compatibility", 8, augmentation=aug)
+        x, _ = pair_input(pair, MODEL_CONFIG, augmentation=aug)
         xa0, xa1 = x[0, :, :2].double().numpy(), x[0, :, 2:].double().numpy()
         # the augmented points satisfy the correspondingly mapped geometry with the same distances
         Es = E.T if swap else E
@@ -174,9 +175,9 @@ def test_augmentation_keeps_the_labels(tmp_path):
 
 def test_augmentation_mines_neighbours_on_the_augmented_frames(tmp_path):
     pair = _fountain_pair(tmp_path)
-    _, nb = network_input(pair, "compatibility", 8)
-    _, nb_id = network_input(pair, "compatibility", 8, augmentation=(False, False, 0.0, 0.0))
-    _, nb_swap = network_input(pair, "compatibility", 8, augmentation=(True, False, 0.0, 0.0))
+    _, nb = pair_input(pair, MODEL_CONFIG)
+    _, nb_id = pair_input(pair, MODEL_CONFIG, augmentation=(False, False, 0.0, 0.0))
+    _, nb_swap = pair_input(pair, MODEL_CONFIG, augmentation=(True, False, 0.0, 0.0))
     assert torch.equal(nb, nb_id)
     swapped = mine_neighbors("compatibility", pair.k1, pair.a1, pair.k0, pair.a0, 8)
     assert np.array_equal(nb_swap[0].numpy(), swapped) and not torch.equal(nb_swap, nb)
@@ -334,3 +335,29 @@ def test_no_training_pairs_is_a_clear_error(tmp_path, balance):
     with pytest.raises(ValueError, match="no training pairs: check the sequence folders and frame ranges"):
         train([f"{seq}:0-0"], [f"{seq}:1-2"], tmp_path / "out", {"balance": balance, "gaps": (1,)}, cache_dir=tmp_path / "cache")
     assert not (tmp_path / "out").exists()
+
+
+def test_ratio_input_fine_tune_starts_as_the_checkpoint_and_is_kept(tmp_path):
+    """--ratio-input from weights trained without it: a zero column, so the same logits at the start."""
+    from nmnet_ros.pairs import to_correspondences
+    from nmnet_ros.selectors import build
+    from nmnet_ros.train import _init_model
+
+    pair = _fountain_pair(tmp_path)
+    shipped = load_model()
+    wide = _init_model(weights_dir() / "nmnet.pt", "compatibility", True)
+    assert wide.config["ratio_input"] and wide.score_threshold == shipped.score_threshold
+    x4, nb = pair_input(pair, shipped.config)
+    x5, nb5 = pair_input(pair, wide.config)
+    assert x5.shape[-1] == 5 and torch.equal(nb, nb5) and np.allclose(x5[0, :, 4].numpy(), pair.matches.ratio)
+    with torch.inference_mode():
+        torch.testing.assert_close(wide(x5, nb), shipped(x4, nb), atol=1e-5, rtol=0)
+    seq = str(data_dir("strecha-fountain-p11"))
+    cfg = {"epochs": 1, "steps_per_epoch": 1, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1,
+           "init": str(weights_dir() / "nmnet.pt"), "ratio_input": True}
+    train([f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path / "run", cfg, cache_dir=tmp_path / "cache")
+    assert load_model(tmp_path / "run" / "best.pt").config["ratio_input"]
+    sel = build("nmnet", weights={"nmnet": str(tmp_path / "run" / "best.pt")})  # the selectors feed it the ratio
+    assert sel(to_correspondences(pair)).scores.shape == (len(pair.labels),)
+    with pytest.raises(ValueError, match="trained with the ratio as an input; add --ratio-input"):
+        train([seq], [seq], tmp_path / "out", {"init": str(tmp_path / "run" / "best.pt")}, cache_dir=tmp_path / "cache")
