@@ -37,16 +37,18 @@ def _without_ros(code: str, cwd) -> subprocess.CompletedProcess:
 
 
 def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
-    """nmnet_node and `nmnet replay --live` stop with one line naming the package and the two ways to get it
-    (exit code 2, no traceback); the live replay's output file is still a readable MCAP."""
+    """nmnet_node (the console script or `python -m nmnet_ros.node`) and `nmnet replay --live` stop with one line
+    naming the package and the two ways to get it (exit code 2, no traceback); the live replay's output file is still a readable MCAP."""
     from mcap.reader import make_reader
 
     from nmnet_ros.demo import SAMPLE_BAG
 
     node = _without_ros("from nmnet_ros.cli import node_main\nsys.exit(node_main(['nmnet_node']))", tmp_path)
+    module = _without_ros("import runpy\nsys.argv = ['node.py']\nrunpy.run_module('nmnet_ros.node', run_name='__main__')",
+                          tmp_path)  # what `python -m nmnet_ros.node` runs
     live = _without_ros(f"from nmnet_ros.cli import main\nsys.exit(main(['replay', {str(SAMPLE_BAG)!r}, '--live', "
                         "'--out', 'live.mcap']))", tmp_path)
-    for done, prog in ((node, "nmnet_node"), (live, "nmnet replay")):
+    for done, prog in ((node, "nmnet_node"), (module, "nmnet_node"), (live, "nmnet replay")):
         assert done.returncode == 2, done.stderr
         assert done.stderr.startswith(f"{prog}: error: the ROS 2 Python package 'rclpy' is missing"), done.stderr
         assert "source /opt/ros/kilted/setup.bash" in done.stderr and "Traceback" not in done.stderr
