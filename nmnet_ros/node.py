@@ -74,6 +74,11 @@ PARAMS: dict[str, tuple] = {
                           "pairs; raise it for a poorly calibrated or rolling-shutter camera)", (0.05, 10.0)),
     "pose_refine_iterations": (SELECTOR_DEFAULTS["refine_iterations"], "Levenberg-Marquardt steps polishing the pose "
                                "on the Cauchy-robust Sampson error after MAGSAC++ (0 = off)", (0, 50)),
+    "min_matches": (8, "fewer selected matches than this give no pose estimate (identity, variance 1e6)", (8, 100000)),
+    "static_flow_px": (1.0, "median flow of the selected matches (px) below which the camera counts as not moving: "
+                            "no_motion, identity pose", (0.0, 1000.0)),
+    "time_jump_s": (1.0, "a frame stamped this many seconds before the previous one restarts the chain (bag loop, "
+                         "clock reset)", (0.0, 86400.0)),
     "qos": ("auto", "input QoS: auto (images reliable when every image publisher offers it, else best effort, "
                     "re-checked every second), sensor_data (best effort, depth 5) or reliable (depth 10)",
             ("auto", "sensor_data", "reliable")),
@@ -103,7 +108,8 @@ def frontend_config(p: dict) -> dict:
         "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
         "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
         "threshold_px": p["pose_threshold_px"], "refine_iterations": p["pose_refine_iterations"],
-        "precision": p["nmnet_precision"],
+        "precision": p["nmnet_precision"], "min_matches": p["min_matches"], "static_flow_px": p["static_flow_px"],
+        "time_jump_s": p["time_jump_s"],
     }
 
 
@@ -413,7 +419,8 @@ class NMNetNode(Node):
         if s.processed == 1:  # the node's first frame: nothing to relate it to; every later one publishes (see posemsg)
             return
         if r.status == "too_few_matches":
-            self._warn("too_few_matches", f"only {r.num_selected} matches selected of {len(r.k0)} (need 8): relative_pose says no estimate")
+            self._warn("too_few_matches", f"only {r.num_selected} matches selected of {len(r.k0)} (need min_matches = "
+                                             f"{self.frontend.config['min_matches']}): relative_pose says no estimate")
         elif r.status == "no_motion":
             self._warn("no_motion", "camera is not moving (median flow below static_flow_px): publishing identity pose",
                        period=30.0)

@@ -486,7 +486,8 @@ def published_scores(peer: Peer, stamp: float) -> np.ndarray:
 
 
 def test_parameters_change_while_running(ros, tmp_path):
-    """`ros2 param set` on a running node: a new NM-Net cut, pose estimator and resize_width act from the next frame;
+    """`ros2 param set` on a running node: a new NM-Net cut, pose estimator, resize_width, min_matches, static_flow_px
+    and time_jump_s act from the next frame;
     a bad choice, a missing weights file, a start-up-only parameter, a value out of range and one of the
     wrong type are refused with the reason,
     and the node keeps its settings and keeps running."""
@@ -527,6 +528,19 @@ def test_parameters_change_while_running(ros, tmp_path):
         frame(46, 7.0)
         uv = published_matches(peer, 7.0)
         assert len(uv) > 50 and uv[:, [0, 2]].max() > 900 and not no_estimate(peer.pose_for(7.0))
+        # the chain's limits: more matches needed than a frame has = no estimate; a flow limit above the flow = static;
+        # a shorter time_jump_s restarts the chain on a frame half a second back (1 s: skipped as out of order)
+        assert all(r.successful for r in set_params(peer, {"min_matches": 100000}))
+        frame(47, 8.0)
+        assert no_estimate(peer.pose_for(8.0))
+        assert all(r.successful for r in set_params(peer, {"min_matches": 8, "static_flow_px": 1000.0}))
+        frame(48, 9.0)
+        static = peer.pose_for(9.0)
+        p, o = static.pose.pose.position, static.pose.pose.orientation
+        assert (p.x, p.y, p.z, o.x, o.y, o.z, o.w) == (0, 0, 0, 0, 0, 0, 1) and not no_estimate(static)
+        assert all(r.successful for r in set_params(peer, {"static_flow_px": 1.0, "time_jump_s": 0.2}))
+        frame(49, 8.5)
+        assert no_estimate(peer.pose_for(8.5))
     finally:
         peer.close()
         node.stop()
