@@ -1,7 +1,8 @@
 """NM-Net (Zhao et al., CVPR 2019): correspondence classifier on compatibility-specific neighbours.
 
 Input: N correspondences as 4-D normalised coordinates (x, y, x', y') and, per correspondence,
-the indices of its k neighbours (itself first). Output: one logit per correspondence.
+the indices of its k neighbours (itself first); ``ratio_input`` (not in the paper, off in the shipped
+weights) adds each match's descriptor distance ratio as a fifth input. Output: one logit per correspondence.
 C(32,1,4) embedding -> grouping (N x k map) -> 8 ResNet blocks with (1,3) convolutions along
 the neighbour axis, stride 2 where the width doubles (k: 8 -> 4 -> 2 -> 1) -> 1x1 head.
 Every convolution is followed by InstanceNorm (over the correspondences: global context),
