@@ -187,8 +187,8 @@ def _roll(angle: float, mirror: bool) -> np.ndarray:
 
 
 def pair_input(pair: PairData, config: dict, sel: np.ndarray | None = None,
-                  augmentation: tuple[bool, bool, float, float] | None = None,
-                  turned: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+               augmentation: tuple[bool, bool, float, float] | None = None,
+               turned: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """(1,N,4|5) network input and (1,N,k) neighbour indices of a pair (optionally turned, a subset, augmented).
 
     ``config``: the model's (neighbour kind, k, whether the ratio is an input).
@@ -329,6 +329,13 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         log(f"initialised from {c['init']}")
     else:
         model = NMNet({"neighbors": kind, "ratio_input": c["ratio_input"]})
+    if resuming:  # checked before any features are computed, as --init
+        ck = torch.load(out_dir / "last.pt", map_location="cpu", weights_only=False)
+        try:
+            model.load_state_dict(ck["state_dict"])
+        except RuntimeError as e:
+            raise WeightsError(f"--resume: {out_dir / 'last.pt'} does not fit this run's network; resume with the options "
+                               f"it was started with (--ratio-input or not): {str(e).splitlines()[0]}") from e
     cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
     groups = [load_pairs([spec], cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"]) for spec in train_specs]
@@ -348,8 +355,6 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     history: list[dict] = []
     start_epoch, best_f = 0, -1.0
     if resuming:
-        ck = torch.load(out_dir / "last.pt", map_location="cpu", weights_only=False)
-        model.load_state_dict(ck["state_dict"])
         opt.load_state_dict(ck["optimizer"])
         rng.bit_generator.state = ck["rng"]
         torch.set_rng_state(ck["torch_rng"])

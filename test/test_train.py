@@ -361,3 +361,6 @@ def test_ratio_input_fine_tune_starts_as_the_checkpoint_and_is_kept(tmp_path):
     assert sel(to_correspondences(pair)).scores.shape == (len(pair.labels),)
     with pytest.raises(ValueError, match="trained with the ratio as an input; add --ratio-input"):
         train([seq], [seq], tmp_path / "out", {"init": str(tmp_path / "run" / "best.pt")}, cache_dir=tmp_path / "cache")
+    with pytest.raises(ValueError, match="--resume: .*last.pt does not fit this run's network; resume with the options"):
+        train([seq], [seq], tmp_path / "run", {**cfg, "ratio_input": False, "epochs": 2}, resume=True,
+              cache_dir=tmp_path / "cache")
