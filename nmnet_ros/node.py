@@ -39,78 +39,15 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 
-from .bf16 import PRECISIONS
 from .caminfo import camera_from_info, fit_camera
 from .dds import LARGE_FRAME_BYTES, follow_reliability, large_frames_advice, silence_advice, where_are_the_images
 from .debug_view import draw_matches
-from .detectors import DEFAULT_DETECTOR, DETECTORS
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
 from .model_fast import precision_note
+from .params import PARAMS, STARTUP_ONLY, check_choices, frontend_config
 from .pipeline import FrameResult, Frontend, Prepared
 from .posemsg import relative_pose_of_current
-from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
-
-PARAMS: dict[str, tuple] = {
-    # name: (default, description, range or choices)
-    "weights": ("", "NM-Net weights file; empty = the weights shipped with the package", None),
-    "detector": (DEFAULT_DETECTOR, "local feature frames: hessian-affine-fast (batched, default), hessian-affine "
-                 "(kornia reference, ~1 s/frame), sift (similarity frames)", tuple(DETECTORS)),
-    "max_keypoints": (2000, "Hessian-affine keypoints per frame", (100, 8000)),
-    "resize_width": (0, "frames wider than this many pixels are downscaled to it before detection (aspect kept, K scaled); "
-                        "0 = full resolution. Published matches stay in the image's own pixels", (0, 20000)),
-    "k": (8, "compatibility neighbours per correspondence (the shipped network is trained with 8)", (2, 16)),
-    "score_threshold": (-1.0, "NM-Net inlier probability above which a match is published; -1 = the threshold "
-                              "calibrated on validation and stored with the weights", (-1.0, 1.0)),
-    "nmnet_precision": ("auto", "NM-Net arithmetic: auto (bfloat16 where the CPU has native bfloat16, else float32), "
-                        "float32 (the exact network), bfloat16 (1.7x faster NM-Net with AVX512-BF16; same accuracy on "
-                        "validation)", PRECISIONS),
-    "matching": ("nn", "putative matches: nn (paper), mutual, ratio (Lowe 0.8)", ("nn", "mutual", "ratio")),
-    "pose_estimator": ("ratio_magsac", "ratio_magsac: MAGSAC++ on the matches NM-Net and mutual NN + ratio 0.8 both keep; "
-                       "magsac: MAGSAC++ on NM-Net's selection; weighted8: eight-point weighted by NM-Net scores; "
-                       "classic: mutual NN + ratio 0.8 + MAGSAC++ without the network",
-                       ("ratio_magsac", "magsac", "weighted8", "classic")),
-    "pose_threshold_px": (SELECTOR_DEFAULTS["threshold_px"], "MAGSAC++ inlier threshold in pixels (chosen on training "
-                          "pairs; raise it for a poorly calibrated or rolling-shutter camera)", (0.05, 10.0)),
-    "pose_refine_iterations": (SELECTOR_DEFAULTS["refine_iterations"], "Levenberg-Marquardt steps polishing the pose "
-                               "on the Cauchy-robust Sampson error after MAGSAC++ (0 = off)", (0, 50)),
-    "min_matches": (8, "fewer selected matches than this give no pose estimate (identity, variance 1e6)", (8, 100000)),
-    "static_flow_px": (1.0, "median flow of the selected matches (px) below which the camera counts as not moving: "
-                            "no_motion, identity pose", (0.0, 1000.0)),
-    "time_jump_s": (1.0, "a frame stamped this many seconds before the previous one restarts the chain (bag loop, "
-                         "clock reset)", (0.0, 86400.0)),
-    "qos": ("auto", "input QoS: auto (images reliable when every image publisher offers it, else best effort, "
-                    "re-checked every second), sensor_data (best effort, depth 5) or reliable (depth 10)",
-            ("auto", "sensor_data", "reliable")),
-    "rectified": (False, "the image topic carries rectified frames (image_proc's image_rect): the camera is camera_info's "
-                         "P, without distortion (K and D describe the raw frames)", None),
-    "use_compressed": (False, "subscribe image/compressed (sensor_msgs/CompressedImage) instead of image", None),
-    "threads": (1, "CPU threads per pipeline stage (torch and OpenCV); detection and the rest run in parallel, "
-                   "so 1 fills 2 cores", (1, 64)),
-    "publish_debug_image": (True, "draw matches on ~/debug_image (only built when someone subscribes)", None),
-    "fx": (0.0, "focal length x (px) used until camera_info arrives; 0 = wait for camera_info", (0.0, 1e5)),
-    "fy": (0.0, "focal length y (px), see fx", (0.0, 1e5)),
-    "cx": (0.0, "principal point x (px), see fx", (0.0, 1e5)),
-    "cy": (0.0, "principal point y (px), see fx", (0.0, 1e5)),
-}
-
-SELECTORS = {"weighted8": "nmnet", "magsac": "nmnet+magsac", "ratio_magsac": "nmnet+ratio+magsac", "classic": "ratio+magsac"}
-# Fixed once the node runs (subscriptions, thread pools, the start-up camera); every other parameter
-# can be changed with `ros2 param set` and takes effect from the next frame.
-STARTUP_ONLY = ("qos", "use_compressed", "threads", "fx", "fy", "cx", "cy")
-
-
-def frontend_config(p: dict) -> dict:
-    """The front end's config for the node's parameter values."""
-    return {
-        "detector": p["detector"], "max_keypoints": p["max_keypoints"], "resize_width": p["resize_width"],
-        "selector": SELECTORS[p["pose_estimator"]],
-        "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
-        "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
-        "threshold_px": p["pose_threshold_px"], "refine_iterations": p["pose_refine_iterations"],
-        "precision": p["nmnet_precision"], "min_matches": p["min_matches"], "static_flow_px": p["static_flow_px"],
-        "time_jump_s": p["time_jump_s"],
-    }
 
 
 def lasting_warning_due(seconds: int, first: int, cap: int = 600) -> bool:
@@ -123,13 +60,6 @@ def lasting_warning_due(seconds: int, first: int, cap: int = 600) -> bool:
     while at < seconds:
         at, gap = at + gap, min(2 * gap, cap)
     return at == seconds
-
-
-def check_choices(p: dict) -> None:
-    """ValueError for a string parameter outside its choices (rclpy checks only types and ranges)."""
-    for name, (_, _, rng) in PARAMS.items():
-        if isinstance(rng, tuple) and isinstance(rng[0], str) and p[name] not in rng:
-            raise ValueError(f"parameter {name}={p[name]!r} is not one of {rng}")
 
 
 @dataclass

@@ -26,8 +26,8 @@ from .debug_view import draw_matches
 from .detectors import DETECTORS
 from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
+from .params import PARAMS, frontend_config, read_params_file
 from .pipeline import RESTARTS, FrameResult, Frontend
-from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
 STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
@@ -256,13 +256,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "P, without distortion")
     p.add_argument("--camera", type=Path, default=None, help="calibration as a ROS camera_info YAML (what camera_calibration "
                    "writes), for a bag without camera_info or to use instead of it")
-    p.add_argument("--selector", default="nmnet+ratio+magsac", help="correspondence selector (see nmnet eval)")
-    p.add_argument("--detector", default="hessian-affine-fast", choices=sorted(DETECTORS), help="local feature frames")
-    p.add_argument("--max-keypoints", type=int, default=2000)
-    p.add_argument("--resize-width", type=int, default=0, help="downscale frames wider than this before detection "
-                   "(the node's resize_width; 0: full resolution)")
-    p.add_argument("--precision", default=SELECTOR_DEFAULTS["precision"], choices=PRECISIONS,
-                   help="NM-Net arithmetic (the node's nmnet_precision; auto: bfloat16 where the CPU has it natively)")
+    p.add_argument("--params-file", type=Path, default=None, metavar="YAML",
+                   help="the node's parameters file (config/nmnet.yaml's form): replay with the settings the node runs; "
+                        "the options below, when given, override it")
+    p.add_argument("--selector", default=None, help="correspondence selector (see nmnet eval; default: the node's "
+                   "pose_estimator, nmnet+ratio+magsac)")
+    p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (the node's weights; default: shipped)")
+    p.add_argument("--detector", default=None, choices=sorted(DETECTORS), help="local feature frames (default: hessian-affine-fast)")
+    p.add_argument("--max-keypoints", type=int, default=None, help="keypoints per frame (default: 2000)")
+    p.add_argument("--resize-width", type=int, default=None, help="downscale frames wider than this before detection "
+                   "(the node's resize_width; default 0: full resolution)")
+    p.add_argument("--precision", default=None, choices=PRECISIONS,
+                   help="NM-Net arithmetic (the node's nmnet_precision; default auto: bfloat16 where the CPU has it natively)")
     p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
     p.add_argument("--baseline", action="store_true", help="also run SIFT + ratio + MAGSAC++ on the same frames and print both")
     p.add_argument("--no-progress", action="store_true")
@@ -270,29 +275,45 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rate", type=float, default=1.0, help="live mode: playback speed factor")
 
 
+FLAGS = {"weights": "weights", "detector": "detector", "max_keypoints": "max_keypoints", "resize_width": "resize_width",
+         "precision": "nmnet_precision"}  # replay option -> the node parameter it sets
+
+
+def node_params(args: argparse.Namespace) -> dict:
+    """The node parameters a replay runs with: the --params-file's (or the defaults), then the options given."""
+    params = (read_params_file(args.params_file, warn=lambda m: print(f"warning: {m}", file=sys.stderr)) if args.params_file
+              else {name: default for name, (default, _, _) in PARAMS.items()})
+    params.update({name: str(v) if isinstance(v, Path) else v for flag, name in FLAGS.items()
+                   if (v := getattr(args, flag)) is not None})
+    params["rectified"] = params["rectified"] or args.rectified
+    return params
+
+
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay`` (offline)."""
     if not args.bag.exists():
         raise BagError(f"{args.bag}: no such bag")
+    params = node_params(args)  # a bad parameters file stops here, naming it
     out = McapOutput(args.out)  # fails before any processing when not writable
     plots_dir = args.plots or args.out.parent
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
     camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
     if args.live:
         return main_live(args, out, camera)
+    cfg = frontend_config(params)
+    if args.selector is not None:
+        cfg["selector"] = args.selector
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
-        cfg = {"selector": args.selector, "max_keypoints": args.max_keypoints, "detector": args.detector,
-               "precision": args.precision, "resize_width": args.resize_width}
         run, n, overlay = process_bag(args.bag, out, cfg, args.gt, args.debug_images, not args.no_progress, topics,
-                                      camera=camera, rectified=args.rectified)
+                                      camera=camera, rectified=params["rectified"])
         runs.append(run)
         if args.baseline:
-            base, _, _ = process_bag(args.bag, None, {**BASELINE, "max_keypoints": args.max_keypoints,
-                                                      "resize_width": args.resize_width}, args.gt,
+            base, _, _ = process_bag(args.bag, None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
+                                                      "resize_width": cfg["resize_width"]}, args.gt,
                                      progress=not args.no_progress, topics=topics, camera=camera,
-                                     rectified=args.rectified)
+                                     rectified=params["rectified"])
             base.name = "SIFT+ratio+MAGSAC++"
             runs.append(base)
     except (KeyboardInterrupt, _Terminated):
@@ -330,6 +351,17 @@ def summary_json(summary: dict) -> str:
     return json.dumps(clean(summary), indent=1, allow_nan=False)
 
 
+def live_node_args(args: argparse.Namespace) -> list[str]:
+    """The node's ``--ros-args`` for a live replay: the --params-file, then each option given as ``-p``."""
+    out = ["--params-file", str(args.params_file)] if args.params_file else []
+    given = {name: getattr(args, flag) for flag, name in FLAGS.items() if getattr(args, flag) is not None}
+    if args.rectified:
+        given["rectified"] = "true"
+    for name, v in given.items():
+        out += ["-p", f"{name}:={v}"]
+    return out
+
+
 def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
     from .live import play_live, score_recording
@@ -337,10 +369,7 @@ def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None =
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
     try:
-        stats = play_live(args.bag, out, args.rate, ["-p", f"max_keypoints:={args.max_keypoints}", "-p", f"detector:={args.detector}",
-                                                     "-p", f"rectified:={str(args.rectified).lower()}",
-                                                     "-p", f"nmnet_precision:={args.precision}",
-                                                     "-p", f"resize_width:={args.resize_width}"], camera=camera)
+        stats = play_live(args.bag, out, args.rate, live_node_args(args), camera=camera)
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130

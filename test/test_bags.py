@@ -347,3 +347,26 @@ def test_a_bag_of_rectified_frames_replays_with_the_projection_matrix(raw_bag, t
         res[bool(flag)] = json.loads((tmp_path / "s.json").read_text())
     print(res)
     assert res[True]["auc5"] > 80 > res[False]["auc5"]  # measured: 10 without the flag (translation 5 deg off)
+
+
+def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
+    """--params-file: the settings the node runs (config/nmnet.yaml's form); an option given overrides the file;
+    a name the node does not have is pointed out and ignored; a value the node would refuse stops the replay
+    before anything is written, naming the file and the parameter."""
+    params = tmp_path / "robot.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    max_keypoints: 300\n    max_keypoint: 9\n"
+                      "nmnet_node:\n  ros__parameters:\n    min_matches: 100000\n")
+    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "a.mcap"), "--json", str(tmp_path / "a.json"),
+              "--params-file", str(params), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert f"warning: {params}: 'max_keypoint' is not an nmnet_node parameter: ignored" in r.stderr
+    s = json.loads((tmp_path / "a.json").read_text())
+    assert s["status"] == {"first_frame": 1, "too_few_matches": 5} and 0 < s["matches_per_frame"] <= 300, s
+    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "b.mcap"), "--json", str(tmp_path / "b.json"),
+              "--params-file", str(params), "--max-keypoints", "600", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert 300 < json.loads((tmp_path / "b.json").read_text())["matches_per_frame"] <= 600
+    params.write_text("/**:\n  ros__parameters:\n    pose_threshold_px: 0.0\n")
+    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "c.mcap"), "--params-file", str(params))
+    assert r.returncode == 2 and f"{params}: pose_threshold_px: 0.0 is out of range 0.05 .. 10.0" in r.stderr, r.stderr
+    assert not (tmp_path / "c.mcap").exists()

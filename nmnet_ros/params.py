@@ -1,0 +1,150 @@
+"""The node's parameters (names, defaults, ranges, what they do) and the front-end config they map to.
+
+ROS-free, so the offline tools read the same parameters files as the node: ``nmnet replay
+--params-file config/nmnet.yaml`` replays a bag with the settings the robot runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import yaml
+
+from .bf16 import PRECISIONS
+from .detectors import DEFAULT_DETECTOR, DETECTORS
+from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
+
+PARAMS: dict[str, tuple] = {
+    # name: (default, description, range or choices)
+    "weights": ("", "NM-Net weights file; empty = the weights shipped with the package", None),
+    "detector": (DEFAULT_DETECTOR, "local feature frames: hessian-affine-fast (batched, default), hessian-affine "
+                 "(kornia reference, ~1 s/frame), sift (similarity frames)", tuple(DETECTORS)),
+    "max_keypoints": (2000, "Hessian-affine keypoints per frame", (100, 8000)),
+    "resize_width": (0, "frames wider than this many pixels are downscaled to it before detection (aspect kept, K scaled); "
+                        "0 = full resolution. Published matches stay in the image's own pixels", (0, 20000)),
+    "k": (8, "compatibility neighbours per correspondence (the shipped network is trained with 8)", (2, 16)),
+    "score_threshold": (-1.0, "NM-Net inlier probability above which a match is published; -1 = the threshold "
+                              "calibrated on validation and stored with the weights", (-1.0, 1.0)),
+    "nmnet_precision": ("auto", "NM-Net arithmetic: auto (bfloat16 where the CPU has native bfloat16, else float32), "
+                        "float32 (the exact network), bfloat16 (1.7x faster NM-Net with AVX512-BF16; same accuracy on "
+                        "validation)", PRECISIONS),
+    "matching": ("nn", "putative matches: nn (paper), mutual, ratio (Lowe 0.8)", ("nn", "mutual", "ratio")),
+    "pose_estimator": ("ratio_magsac", "ratio_magsac: MAGSAC++ on the matches NM-Net and mutual NN + ratio 0.8 both keep; "
+                       "magsac: MAGSAC++ on NM-Net's selection; weighted8: eight-point weighted by NM-Net scores; "
+                       "classic: mutual NN + ratio 0.8 + MAGSAC++ without the network",
+                       ("ratio_magsac", "magsac", "weighted8", "classic")),
+    "pose_threshold_px": (SELECTOR_DEFAULTS["threshold_px"], "MAGSAC++ inlier threshold in pixels (chosen on training "
+                          "pairs; raise it for a poorly calibrated or rolling-shutter camera)", (0.05, 10.0)),
+    "pose_refine_iterations": (SELECTOR_DEFAULTS["refine_iterations"], "Levenberg-Marquardt steps polishing the pose "
+                               "on the Cauchy-robust Sampson error after MAGSAC++ (0 = off)", (0, 50)),
+    "min_matches": (8, "fewer selected matches than this give no pose estimate (identity, variance 1e6)", (8, 100000)),
+    "static_flow_px": (1.0, "median flow of the selected matches (px) below which the camera counts as not moving: "
+                            "no_motion, identity pose", (0.0, 1000.0)),
+    "time_jump_s": (1.0, "a frame stamped this many seconds before the previous one restarts the chain (bag loop, "
+                         "clock reset)", (0.0, 86400.0)),
+    "qos": ("auto", "input QoS: auto (images reliable when every image publisher offers it, else best effort, "
+                    "re-checked every second), sensor_data (best effort, depth 5) or reliable (depth 10)",
+            ("auto", "sensor_data", "reliable")),
+    "rectified": (False, "the image topic carries rectified frames (image_proc's image_rect): the camera is camera_info's "
+                         "P, without distortion (K and D describe the raw frames)", None),
+    "use_compressed": (False, "subscribe image/compressed (sensor_msgs/CompressedImage) instead of image", None),
+    "threads": (1, "CPU threads per pipeline stage (torch and OpenCV); detection and the rest run in parallel, "
+                   "so 1 fills 2 cores", (1, 64)),
+    "publish_debug_image": (True, "draw matches on ~/debug_image (only built when someone subscribes)", None),
+    "fx": (0.0, "focal length x (px) used until camera_info arrives; 0 = wait for camera_info", (0.0, 1e5)),
+    "fy": (0.0, "focal length y (px), see fx", (0.0, 1e5)),
+    "cx": (0.0, "principal point x (px), see fx", (0.0, 1e5)),
+    "cy": (0.0, "principal point y (px), see fx", (0.0, 1e5)),
+}
+
+SELECTORS = {"weighted8": "nmnet", "magsac": "nmnet+magsac", "ratio_magsac": "nmnet+ratio+magsac", "classic": "ratio+magsac"}
+# Fixed once the node runs (subscriptions, thread pools, the start-up camera); every other parameter
+# can be changed with `ros2 param set` and takes effect from the next frame.
+STARTUP_ONLY = ("qos", "use_compressed", "threads", "fx", "fy", "cx", "cy")
+
+
+def frontend_config(p: dict) -> dict:
+    """The front end's config for the node's parameter values."""
+    return {
+        "detector": p["detector"], "max_keypoints": p["max_keypoints"], "resize_width": p["resize_width"],
+        "selector": SELECTORS[p["pose_estimator"]],
+        "weights": p["weights"] or None, "score_threshold": p["score_threshold"] if p["score_threshold"] >= 0 else None,
+        "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
+        "threshold_px": p["pose_threshold_px"], "refine_iterations": p["pose_refine_iterations"],
+        "precision": p["nmnet_precision"], "min_matches": p["min_matches"], "static_flow_px": p["static_flow_px"],
+        "time_jump_s": p["time_jump_s"],
+    }
+
+
+def check_choices(p: dict) -> None:
+    """ValueError for a string parameter outside its choices (rclpy checks only types and ranges)."""
+    for name, (_, _, rng) in PARAMS.items():
+        if isinstance(rng, tuple) and isinstance(rng[0], str) and p[name] not in rng:
+            raise ValueError(f"parameter {name}={p[name]!r} is not one of {rng}")
+
+
+NODE_NAME = "nmnet_node"
+ROS_COMMON = ("use_sim_time",)  # parameters every ROS 2 node has: allowed in a file, nothing to do offline
+
+
+class ParamsFileError(ValueError):
+    """A parameters file that cannot be read, or holds a value the node would refuse."""
+
+
+def check_value(name: str, value: object) -> str | None:
+    """Why the node would refuse ``value`` for parameter ``name`` (None: it takes it), as rclpy and the node check.
+
+    Types are strict, as rclpy's: a float parameter given an integer is refused (write ``1.0``).
+    """
+    default, _, rng = PARAMS[name]
+    kind = type(default)
+    if type(value) is not kind:  # bool is not int, int is not float: as rclpy's declared types
+        hint = f" (write {float(value)!r})" if kind is float and type(value) is int else ""
+        return f"{name}: {value!r} is a {type(value).__name__}, the parameter is a {kind.__name__}{hint}"
+    if isinstance(rng, tuple) and isinstance(rng[0], str):
+        return None if value in rng else f"{name}: {value!r} is not one of {rng}"
+    if isinstance(rng, tuple) and not rng[0] <= value <= rng[1]:
+        return f"{name}: {value!r} is out of range {rng[0]} .. {rng[1]}"
+    return None
+
+
+def _sections(doc: object, path: Path) -> list[dict]:
+    """The ``ros__parameters`` mappings of a ROS 2 parameters file that apply to the node, in file order."""
+    if not isinstance(doc, dict):
+        raise ParamsFileError(f"{path}: not a ROS 2 parameters file (a mapping of node names to ros__parameters)")
+    found = []
+    for key, body in doc.items():
+        name = str(key).strip("/").split("/")[-1]
+        if name in ("**", NODE_NAME) and isinstance(body, dict) and isinstance(body.get("ros__parameters"), dict):
+            found.append(body["ros__parameters"])
+    if not found:
+        raise ParamsFileError(f"{path}: no ros__parameters for /** or {NODE_NAME} (found: {', '.join(map(str, doc)) or 'nothing'})")
+    return found
+
+
+def read_params_file(path: Path, warn: Callable[[str], None] = print) -> dict:
+    """Every node parameter's value from a ROS 2 parameters file (``config/nmnet.yaml``'s form), defaults for the rest.
+
+    Sections for ``/**`` and for the node (``nmnet_node``, any namespace) apply in file order. A value the
+    node would refuse raises :class:`ParamsFileError` naming the file and the parameter; a name the node
+    does not have is reported through ``warn`` and ignored, as the node ignores it.
+    """
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except OSError as e:
+        raise ParamsFileError(f"{path}: cannot read the parameters file ({e.strerror or e})") from e
+    except yaml.YAMLError as e:
+        raise ParamsFileError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from e
+    values = {name: default for name, (default, _, _) in PARAMS.items()}
+    for section in _sections(doc, path):
+        for name, value in section.items():
+            if name not in PARAMS:
+                if name not in ROS_COMMON:
+                    warn(f"{path}: {name!r} is not an {NODE_NAME} parameter: ignored (the list: README, Parameters)")
+                continue
+            if (why := check_value(name, value)) is not None:
+                raise ParamsFileError(f"{path}: {why}")
+            values[name] = value
+    return values

@@ -1,0 +1,69 @@
+"""The node's parameters as data: the shipped file, the front-end mapping, parameters files read offline."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from nmnet_ros.params import PARAMS, ParamsFileError, check_value, frontend_config, read_params_file
+from nmnet_ros.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
+from nmnet_ros.replay import add_arguments, live_node_args
+
+from .conftest import ROOT
+
+DEFAULTS = {name: default for name, (default, _, _) in PARAMS.items()}
+
+
+def test_the_node_defaults_are_the_front_end_defaults():
+    """A replay without a parameters file runs what it ran before it read them: the front end's own defaults."""
+    cfg = frontend_config(DEFAULTS)
+    assert cfg == {k: FRONTEND_DEFAULTS[k] for k in cfg}
+
+
+def test_the_shipped_parameters_file_reads_as_the_defaults():
+    warnings = []
+    assert read_params_file(ROOT / "config" / "nmnet.yaml", warn=warnings.append) == DEFAULTS and warnings == []
+
+
+def test_sections_for_the_node_apply_in_file_order_and_others_are_ignored(tmp_path):
+    f = tmp_path / "p.yaml"
+    f.write_text("/**:\n  ros__parameters:\n    max_keypoints: 500\n    use_sim_time: true\n    max_keypoint: 9\n"
+                 "/robot/nmnet_node:\n  ros__parameters:\n    max_keypoints: 700\n    pose_estimator: classic\n"
+                 "other_node:\n  ros__parameters:\n    k: 3\n")
+    warnings = []
+    got = read_params_file(f, warn=warnings.append)
+    assert got == {**DEFAULTS, "max_keypoints": 700, "pose_estimator": "classic"}
+    assert warnings == [f"{f}: 'max_keypoint' is not an nmnet_node parameter: ignored (the list: README, Parameters)"]
+    assert frontend_config(got)["selector"] == "ratio+magsac"
+
+
+@pytest.mark.parametrize(("text", "match"), [
+    (None, "cannot read the parameters file"),
+    ("a: [1, 2\n", "not valid YAML"),
+    ("- 1\n- 2\n", "not a ROS 2 parameters file"),
+    ("other_node:\n  ros__parameters:\n    k: 3\n", r"no ros__parameters for /\*\* or nmnet_node \(found: other_node\)"),
+    ("/**:\n  ros__parameters:\n    max_keypoints: lots\n", "max_keypoints: 'lots' is a str, the parameter is a int"),
+    ("/**:\n  ros__parameters:\n    score_threshold: 1\n", r"score_threshold: 1 is a int, the parameter is a float \(write 1.0\)"),
+    ("/**:\n  ros__parameters:\n    rectified: 1\n", "rectified: 1 is a int, the parameter is a bool"),
+    ("/**:\n  ros__parameters:\n    max_keypoints: 50\n", "max_keypoints: 50 is out of range 100 .. 8000"),
+    ("/**:\n  ros__parameters:\n    pose_estimator: fancy\n", "pose_estimator: 'fancy' is not one of"),
+], ids=["missing", "yaml", "not-a-mapping", "no-section", "type", "int-for-float", "int-for-bool", "range", "choice"])
+def test_a_bad_parameters_file_names_the_file_and_the_problem(tmp_path, text, match):
+    f = tmp_path / "p.yaml"
+    if text is not None:
+        f.write_text(text)
+    with pytest.raises(ParamsFileError, match=f"^{f}: {match}"):
+        read_params_file(f)
+
+
+def test_every_default_passes_its_own_check():
+    assert all(check_value(name, default) is None for name, default in DEFAULTS.items())
+
+
+def test_a_live_replay_hands_the_node_the_file_then_the_options_given():
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    args = p.parse_args(["bag", "--out", "o.mcap", "--params-file", "mine.yaml", "--max-keypoints", "500", "--rectified"])
+    assert live_node_args(args) == ["--params-file", "mine.yaml", "-p", "max_keypoints:=500", "-p", "rectified:=true"]
+    assert live_node_args(p.parse_args(["bag", "--out", "o.mcap"])) == []
