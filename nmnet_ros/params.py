@@ -88,6 +88,9 @@ NODE_NAME = "nmnet_node"
 ROS_COMMON = ("use_sim_time",)  # parameters every ROS 2 node has: allowed in a file, nothing to do offline
 
 
+_TYPE_NAMES = {bool: "a bool", int: "an integer", float: "a float", str: "a string"}
+
+
 class ParamsFileError(ValueError):
     """A parameters file that cannot be read, or holds a value the node would refuse."""
 
@@ -101,7 +104,7 @@ def check_value(name: str, value: object) -> str | None:
     kind = type(default)
     if type(value) is not kind:  # bool is not int, int is not float: as rclpy's declared types
         hint = f" (write {float(value)!r})" if kind is float and type(value) is int else ""
-        return f"{name}: {value!r} is a {type(value).__name__}, the parameter is a {kind.__name__}{hint}"
+        return f"{name}: {value!r} is {_TYPE_NAMES.get(type(value), type(value).__name__)}, the parameter {_TYPE_NAMES[kind]}{hint}"
     if isinstance(rng, tuple) and isinstance(rng[0], str):
         return None if value in rng else f"{name}: {value!r} is not one of {rng}"
     if isinstance(rng, tuple) and not rng[0] <= value <= rng[1]:

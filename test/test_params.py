@@ -43,9 +43,9 @@ def test_sections_for_the_node_apply_in_file_order_and_others_are_ignored(tmp_pa
     ("a: [1, 2\n", "not valid YAML"),
     ("- 1\n- 2\n", "not a ROS 2 parameters file"),
     ("other_node:\n  ros__parameters:\n    k: 3\n", r"no ros__parameters for /\*\* or nmnet_node \(found: other_node\)"),
-    ("/**:\n  ros__parameters:\n    max_keypoints: lots\n", "max_keypoints: 'lots' is a str, the parameter is a int"),
-    ("/**:\n  ros__parameters:\n    score_threshold: 1\n", r"score_threshold: 1 is a int, the parameter is a float \(write 1.0\)"),
-    ("/**:\n  ros__parameters:\n    rectified: 1\n", "rectified: 1 is a int, the parameter is a bool"),
+    ("/**:\n  ros__parameters:\n    max_keypoints: lots\n", "max_keypoints: 'lots' is a string, the parameter an integer"),
+    ("/**:\n  ros__parameters:\n    score_threshold: 1\n", r"score_threshold: 1 is an integer, the parameter a float \(write 1.0\)"),
+    ("/**:\n  ros__parameters:\n    rectified: 1\n", "rectified: 1 is an integer, the parameter a bool"),
     ("/**:\n  ros__parameters:\n    max_keypoints: 50\n", "max_keypoints: 50 is out of range 100 .. 8000"),
     ("/**:\n  ros__parameters:\n    pose_estimator: fancy\n", "pose_estimator: 'fancy' is not one of"),
 ], ids=["missing", "yaml", "not-a-mapping", "no-section", "type", "int-for-float", "int-for-bool", "range", "choice"])
