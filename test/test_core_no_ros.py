@@ -8,7 +8,7 @@ import pytest
 
 CORE = ["features", "matching", "neighbors", "geometry", "datasets", "model", "pairs", "metrics", "cache", "train",
         "neighbor_study"]
-OFFLINE_TOOLS = ["evaluate", "replay", "make_bag", "bench", "cli"]  # nmnet replay (offline), eval, make-bag, bench
+OFFLINE_TOOLS = ["evaluate", "replay", "make_bag", "bench", "cli", "params"]  # nmnet replay (offline), eval, make-bag, bench
 
 
 @pytest.mark.parametrize("modules", [CORE, OFFLINE_TOOLS], ids=["core", "offline-tools"])
