@@ -11,6 +11,7 @@ import pytest
 
 from nmnet_ros.datasets import Sequence
 from nmnet_ros.geometry import rotation_error_deg
+from nmnet_ros.params import read_params_file
 
 from .conftest import ROOT, data_dir
 from .rosharness import NodeProcess, camera_info_msg, compressed_msg, image_msg, launch_node_args, ros_env, spin_until, unique_domain
@@ -445,15 +446,20 @@ def get_params(peer: Peer, names: list[str]) -> dict:
 def test_parameters_from_yaml_and_command_line(ros, tmp_path):
     seq = Sequence.load(data_dir("kitti-07"))
     yaml_file = tmp_path / "p.yaml"
-    yaml_file.write_text("/**:\n  ros__parameters:\n    max_keypoints: 500\n    score_threshold: 0.7\n    qos: reliable\n"
-                         "    pose_threshold_px: 0.8\n    pose_refine_iterations: 0\n")
+    yaml_file.write_text("nmnet_node:\n  ros__parameters:\n    k: 4\n    pose_refine_iterations: 3\n"  # before /**: loses
+                         "/**:\n  ros__parameters:\n    max_keypoints: 500\n    score_threshold: 0.7\n    qos: reliable\n"
+                         "    pose_threshold_px: 0.8\n    pose_refine_iterations: 0\n"
+                         "/nmnet_node:\n  ros__parameters:\n    k: 6\n")  # after /**: wins
     node = NodeProcess(["--ros-args", "--params-file", str(yaml_file), "-p", "max_keypoints:=300"], ros, tmp_path / "node.log")
     peer = Peer(reliable=True)
     try:
         peer.wait_connected()
         got = get_params(peer, ["max_keypoints", "score_threshold", "qos", "k", "pose_threshold_px", "pose_refine_iterations"])
-        assert got == {"max_keypoints": 300, "score_threshold": 0.7, "qos": "reliable", "k": 8, "pose_threshold_px": 0.8,
+        assert got == {"max_keypoints": 300, "score_threshold": 0.7, "qos": "reliable", "k": 6, "pose_threshold_px": 0.8,
                        "pose_refine_iterations": 0}
+        # what `nmnet replay --params-file` reads from the same file: the node's values (sections in file order)
+        offline = read_params_file(yaml_file)
+        assert {name: offline[name] for name in got} == {**got, "max_keypoints": 500}  # 300 came from -p
         peer.first_frame(kitti_info(seq), image_msg(seq.image(0), 1.0))
         assert 0 < int(peer.diag_values()["keypoints"]) <= 300  # the -p value reached the detector
     finally:
