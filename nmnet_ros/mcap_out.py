@@ -14,7 +14,7 @@ from mcap.writer import CompressionType, Writer
 
 from .bags import typestore
 from .imgconv import array_to_image_fields, matches_to_cloud_fields
-from .posemsg import relative_pose_of_current
+from .posemsg import DIR_SIGMA, ROT_SIGMA_DEG, relative_pose_of_current
 
 if TYPE_CHECKING:  # the front end (and its network) is not needed to write a bag
     from .pipeline import FrameResult
@@ -23,8 +23,10 @@ if TYPE_CHECKING:  # the front end (and its network) is not needed to write a ba
 class McapOutput:
     """Writes the front end's outputs (matches, relative pose, debug image) to an .mcap file."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, pose_sigmas: tuple[float, float] = (ROT_SIGMA_DEG, DIR_SIGMA)) -> None:
+        """``pose_sigmas``: the relative poses' covariance, as the node's pose_sigma_* parameters."""
         self.path = Path(path)
+        self.pose_sigmas = pose_sigmas
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._fh = open(self.path, "wb")  # noqa: SIM115 - closed in close()
@@ -76,7 +78,7 @@ class McapOutput:
                                                  point_step=f["point_step"], row_step=f["row_step"],
                                                  data=np.frombuffer(f["data"], np.uint8), is_dense=True)
         self.write(f"{prefix}/matches", "sensor_msgs/msg/PointCloud2", cloud, t_ns)
-        q, tr, cov = relative_pose_of_current(result.status, result.pose, result.num_selected)
+        q, tr, cov = relative_pose_of_current(result.status, result.pose, result.num_selected, self.pose_sigmas)
         pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=tr[0], y=tr[1], z=tr[2]),
                                            orientation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
         msg = T["geometry_msgs/msg/PoseWithCovarianceStamped"](

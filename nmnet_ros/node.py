@@ -45,7 +45,7 @@ from .debug_view import draw_matches
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
 from .model_fast import precision_note
-from .params import PARAMS, STARTUP_ONLY, check_choices, frontend_config
+from .params import PARAMS, STARTUP_ONLY, check_choices, frontend_config, pose_sigmas
 from .pipeline import FrameResult, Frontend, Prepared
 from .posemsg import relative_pose_of_current
 
@@ -365,7 +365,7 @@ class NMNetNode(Node):
         cloud.data = f["data"]
         self.pub_matches.publish(cloud)
         pose_msg = PoseWithCovarianceStamped(header=header)
-        q, t, cov = relative_pose_of_current(r.status, r.pose, r.num_selected)
+        q, t, cov = relative_pose_of_current(r.status, r.pose, r.num_selected, pose_sigmas(self.params))
         pose_msg.pose.pose.position.x, pose_msg.pose.pose.position.y, pose_msg.pose.pose.position.z = (float(v) for v in t)
         o = pose_msg.pose.pose.orientation
         o.x, o.y, o.z, o.w = (float(v) for v in q)

@@ -13,6 +13,7 @@ import yaml
 
 from .bf16 import PRECISIONS
 from .detectors import DEFAULT_DETECTOR, DETECTORS
+from .posemsg import DIR_SIGMA, ROT_SIGMA_DEG
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 
 PARAMS: dict[str, tuple] = {
@@ -43,6 +44,10 @@ PARAMS: dict[str, tuple] = {
                             "no_motion, identity pose", (0.0, 1000.0)),
     "time_jump_s": (1.0, "a frame stamped this many seconds before the previous one restarts the chain (bag loop, "
                          "clock reset)", (0.0, 86400.0)),
+    "pose_sigma_rotation_deg": (ROT_SIGMA_DEG, "published rotation sigma per axis (degrees) at 200 selected matches, "
+                                "scaled by sqrt(200 / n); the default is a conservative bound", (1e-4, 90.0)),
+    "pose_sigma_direction": (DIR_SIGMA, "published sigma per component of the unit translation direction at 200 "
+                             "selected matches, scaled as the rotation's", (1e-5, 2.0)),
     "qos": ("auto", "input QoS: auto (images reliable when every image publisher offers it, else best effort, "
                     "re-checked every second), sensor_data (best effort, depth 5) or reliable (depth 10)",
             ("auto", "sensor_data", "reliable")),
@@ -75,6 +80,11 @@ def frontend_config(p: dict) -> dict:
         "precision": p["nmnet_precision"], "min_matches": p["min_matches"], "static_flow_px": p["static_flow_px"],
         "time_jump_s": p["time_jump_s"],
     }
+
+
+def pose_sigmas(p: dict) -> tuple[float, float]:
+    """(rotation degrees, direction) sigmas of the published covariance at 200 matches, for ``posemsg``."""
+    return p["pose_sigma_rotation_deg"], p["pose_sigma_direction"]
 
 
 def check_choices(p: dict) -> None:

@@ -18,8 +18,9 @@ import numpy as np
 from .datasets import quat_to_rot
 from .geometry import PoseEstimate
 
-ROT_SIGMA_RAD = np.radians(0.5)  # per-axis rotation sigma at REF_MATCHES selected matches
-DIR_SIGMA = 0.05  # per-axis sigma of the unit translation direction at REF_MATCHES
+ROT_SIGMA_DEG = 0.5  # per-axis rotation sigma at REF_MATCHES selected matches (the node's pose_sigma_rotation_deg)
+ROT_SIGMA_RAD = np.radians(ROT_SIGMA_DEG)
+DIR_SIGMA = 0.05  # per-axis sigma of the unit translation direction at REF_MATCHES (pose_sigma_direction)
 REF_MATCHES = 200
 NO_ESTIMATE_VAR = 1e6  # variance on every axis of a frame without an estimate
 
@@ -38,10 +39,14 @@ def rot_to_quat(R: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches: int
+def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches: int,
+                             sigmas: tuple[float, float] = (ROT_SIGMA_DEG, DIR_SIGMA)
                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(quaternion xyzw, translation direction, 6x6 covariance [x y z roll pitch yaw]) of T_prev_cur for a
     frame of ``status`` (a FrameResult's).
+
+    ``sigmas``: (rotation degrees, direction) per axis at REF_MATCHES selected matches, scaled by
+    sqrt(REF_MATCHES / num_matches).
 
     ``ok``: the estimate. ``no_motion`` (a static camera): the identity with zero translation and the
     rotation covariance. Any other status: the identity with NO_ESTIMATE_VAR on every axis.
@@ -50,15 +55,16 @@ def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches
     if status not in ("ok", "no_motion") or (status == "ok" and pose is None):
         return np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.eye(6) * NO_ESTIMATE_VAR
     scale = REF_MATCHES / max(num_matches, 1)
+    rot_var, dir_var = np.radians(sigmas[0]) ** 2 * scale, sigmas[1] ** 2 * scale
     if status == "no_motion":
         cov[:3, :3] = np.eye(3) * 1e-6
-        cov[3:, 3:] = np.eye(3) * ROT_SIGMA_RAD**2 * scale
+        cov[3:, 3:] = np.eye(3) * rot_var
         return np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), cov
     R_pc = pose.R.T
     t_pc = -pose.R.T @ pose.t
     t_pc = t_pc / max(np.linalg.norm(t_pc), 1e-12)
-    cov[:3, :3] = np.eye(3) * DIR_SIGMA**2 * scale
-    cov[3:, 3:] = np.eye(3) * ROT_SIGMA_RAD**2 * scale
+    cov[:3, :3] = np.eye(3) * dir_var
+    cov[3:, 3:] = np.eye(3) * rot_var
     return rot_to_quat(R_pc), t_pc, cov
 
 

@@ -26,7 +26,7 @@ from .debug_view import draw_matches
 from .detectors import DETECTORS
 from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
-from .params import PARAMS, frontend_config, read_params_file
+from .params import PARAMS, frontend_config, pose_sigmas, read_params_file
 from .pipeline import RESTARTS, FrameResult, Frontend
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
@@ -294,7 +294,7 @@ def main(args: argparse.Namespace) -> int:
     if not args.bag.exists():
         raise BagError(f"{args.bag}: no such bag")
     params = node_params(args)  # a bad parameters file stops here, naming it
-    out = McapOutput(args.out)  # fails before any processing when not writable
+    out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
     plots_dir = args.plots or args.out.parent
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
     camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it

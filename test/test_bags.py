@@ -362,10 +362,17 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     assert f"warning: {params}: 'max_keypoint' is not an nmnet_node parameter: ignored" in r.stderr
     s = json.loads((tmp_path / "a.json").read_text())
     assert s["status"] == {"first_frame": 1, "too_few_matches": 5} and 0 < s["matches_per_frame"] <= 300, s
+    params.write_text("/**:\n  ros__parameters:\n    max_keypoints: 300\n    pose_sigma_rotation_deg: 0.05\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "b.mcap"), "--json", str(tmp_path / "b.json"),
               "--params-file", str(params), "--max-keypoints", "600", "--no-progress")
     assert r.returncode == 0, r.stderr
     assert 300 < json.loads((tmp_path / "b.json").read_text())["matches_per_frame"] <= 600
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([tmp_path / "b.mcap"]) as reader:  # the recorded covariance has the file's rotation sigma
+        covs = [reader.deserialize(raw, c.msgtype).pose.covariance.reshape(6, 6) for c, _, raw in reader.messages()
+                if c.topic.endswith("relative_pose")]
+    assert len(covs) == 5 and all(np.isclose(c[3, 3] / c[0, 0], np.radians(0.05) ** 2 / 0.05**2) for c in covs)
     params.write_text("/**:\n  ros__parameters:\n    pose_threshold_px: 0.0\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "c.mcap"), "--params-file", str(params))
     assert r.returncode == 2 and f"{params}: pose_threshold_px: 0.0 is out of range 0.05 .. 10.0" in r.stderr, r.stderr

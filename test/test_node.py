@@ -492,8 +492,8 @@ def published_scores(peer: Peer, stamp: float) -> np.ndarray:
 
 
 def test_parameters_change_while_running(ros, tmp_path):
-    """`ros2 param set` on a running node: a new NM-Net cut, pose estimator, resize_width, min_matches, static_flow_px
-    and time_jump_s act from the next frame;
+    """`ros2 param set` on a running node: a new NM-Net cut, pose estimator, resize_width, min_matches, static_flow_px,
+    time_jump_s and the covariance's sigmas act from the next frame;
     a bad choice, a missing weights file, a start-up-only parameter, a value out of range and one of the
     wrong type are refused with the reason,
     and the node keeps its settings and keeps running."""
@@ -547,6 +547,11 @@ def test_parameters_change_while_running(ros, tmp_path):
         assert all(r.successful for r in set_params(peer, {"static_flow_px": 1.0, "time_jump_s": 0.2}))
         frame(49, 8.5)
         assert no_estimate(peer.pose_for(8.5))
+        # the published covariance's sigmas (at 200 matches, sqrt(200 / n) beyond)
+        assert all(r.successful for r in set_params(peer, {"pose_sigma_rotation_deg": 0.05, "pose_sigma_direction": 0.004}))
+        n = len(frame(50, 10.0))
+        cov = np.asarray(peer.pose_for(10.0).pose.covariance).reshape(6, 6)
+        np.testing.assert_allclose(np.diag(cov), [0.004**2 * 200 / n] * 3 + [np.radians(0.05) ** 2 * 200 / n] * 3, rtol=1e-9)
     finally:
         peer.close()
         node.stop()

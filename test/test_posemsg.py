@@ -55,3 +55,14 @@ def test_a_recorded_no_estimate_scores_as_a_failure_and_an_estimate_by_its_error
     good = PoseEstimate(np.eye(3), np.array([0.0, 0.0, -1.0]), np.zeros((3, 3)), np.zeros(0, bool))
     rot, trans = frame_error(*estimate_of_message(*relative_pose_of_current("ok", good, 300)), T0, T1)
     assert rot < 1e-6 and trans < 1e-6
+
+
+def test_the_sigmas_set_the_covariance_at_200_matches():
+    """The node's pose_sigma_rotation_deg / pose_sigma_direction: per-axis sigmas at 200 matches, sqrt(200 / n) beyond."""
+    est = _pose(3.0, (0.1, -0.2, 1.0))
+    cov = relative_pose_of_current("ok", est, 200, (0.05, 0.004))[2]
+    np.testing.assert_allclose(np.diag(cov), [0.004**2] * 3 + [np.radians(0.05) ** 2] * 3, rtol=1e-12)
+    assert np.allclose(relative_pose_of_current("ok", est, 50, (0.05, 0.004))[2], 4 * cov)
+    static = relative_pose_of_current("no_motion", None, 200, (0.05, 0.004))[2]
+    assert np.isclose(static[3, 3], np.radians(0.05) ** 2)
+    assert estimate_of_message(*relative_pose_of_current("ok", est, 200, (1e-4, 1e-5)))[0] == "ok"  # tiny is still an estimate

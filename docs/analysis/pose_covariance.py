@@ -12,6 +12,9 @@ validation pairs: the share of errors within 1 and 2 sigma (a Gaussian has 68 an
 fitted ``a`` and with the constants in posemsg.py.
 
     python docs/analysis/pose_covariance.py ../shared/data
+    python docs/analysis/pose_covariance.py ../shared/data --train my_seq_a --val my_seq_b   # your camera's sigmas
+
+The fitted ``a`` are the node's ``pose_sigma_rotation_deg`` (in degrees) and ``pose_sigma_direction``.
 """
 
 from __future__ import annotations
@@ -71,12 +74,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data", help="the ../shared/data folder")
     ap.add_argument("--max-pairs", type=int, default=100, help="training pairs per sequence")
+    ap.add_argument("--train", nargs="+", metavar="SEQ[:a-b]", help="fit on these sequence folders instead (your camera's)")
+    ap.add_argument("--val", nargs="+", metavar="SEQ[:a-b]", help="check the fit on these instead")
     args = ap.parse_args()
     cache = FeatureCache(make_detector(DEFAULT_DETECTOR))
     d = args.data
-    train = load_eval_pairs([f"{d}/strecha-fountain-p11", f"{d}/strecha-entry-p10", f"{d}/kitti-07:0-119"], tuple(range(1, 11)),
-                            cache, max_pairs=args.max_pairs)
-    val = load_eval_pairs([f"{d}/kitti-07:120-159", f"{d}/strecha-herz-jesus-p25"], tuple(range(1, 11)), cache)
+    train_specs = args.train or [f"{d}/strecha-fountain-p11", f"{d}/strecha-entry-p10", f"{d}/kitti-07:0-119"]
+    val_specs = args.val or [f"{d}/kitti-07:120-159", f"{d}/strecha-herz-jesus-p25"]
+    train = load_eval_pairs(train_specs, tuple(range(1, 11)), cache, max_pairs=args.max_pairs)
+    val = load_eval_pairs(val_specs, tuple(range(1, 11)), cache)
     rot, trans, n, failed = errors(train)
     a_rot, a_dir = spread(rot, n), spread(trans, n)
     print(f"training: {len(n)} poses ({failed} failures > {FAILED_DEG:g} deg left out), selected matches median {np.median(n):.0f}")
