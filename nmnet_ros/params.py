@@ -90,8 +90,8 @@ def pose_sigmas(p: dict) -> tuple[float, float]:
 def check_choices(p: dict) -> None:
     """ValueError for a string parameter outside its choices (rclpy checks only types and ranges)."""
     for name, (_, _, rng) in PARAMS.items():
-        if isinstance(rng, tuple) and isinstance(rng[0], str) and p[name] not in rng:
-            raise ValueError(f"parameter {name}={p[name]!r} is not one of {rng}")
+        if isinstance(rng, tuple) and isinstance(rng[0], str) and (why := check_value(name, p[name])) is not None:
+            raise ValueError(f"parameter {why}")
 
 
 NODE_NAME = "nmnet_node"
