@@ -299,7 +299,7 @@ def main(args: argparse.Namespace) -> int:
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
     camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
     if args.live:
-        return main_live(args, out, camera)
+        return main_live(args, out, camera, params)
     cfg = frontend_config(params)
     if args.selector is not None:
         cfg["selector"] = args.selector
@@ -325,7 +325,9 @@ def main(args: argparse.Namespace) -> int:
     if not runs:
         print(f"output: {args.out} ({out.count} messages)")
         return 130
-    summary = runs[0].summary(n)
+    summary = {**runs[0].summary(n), "parameters": params}  # what it ran with, as the node's parameters
+    if args.selector is not None:
+        summary["selector"] = args.selector
     print_summary(summary, runs[0].name)
     if len(runs) > 1:
         summary["baseline"] = runs[1].summary(n)
@@ -362,7 +364,7 @@ def live_node_args(args: argparse.Namespace) -> list[str]:
     return out
 
 
-def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None = None) -> int:
+def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None = None, params: dict | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
     from .live import play_live, score_recording
 
@@ -381,7 +383,7 @@ def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None =
     processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result
     summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,
                "fps": processed / wall, "latency_p50_ms": float(np.percentile(lat, 50)),
-               "latency_p90_ms": float(np.percentile(lat, 90)), **score_recording(args.out, args.bag)}
+               "latency_p90_ms": float(np.percentile(lat, 90)), **score_recording(args.out, args.bag), "parameters": params}
     print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped, "
           f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
     if summary["median_rot_deg"] is not None:

@@ -192,7 +192,7 @@ def test_live_replay_agrees_with_offline(tmp_path):
     assert off.returncode == 0, off.stderr
     s_live, s_off = (json.loads((tmp_path / f"{m}.json").read_text()) for m in ("live", "off"))
     print("live", s_live, "\noffline", s_off)
-    assert s_live["frames"] == s_off["frames"] == 40
+    assert s_live["frames"] == s_off["frames"] == 40 and s_live["parameters"] == s_off["parameters"]
     assert s_live["processed"] + s_live["dropped"] == 40 and s_live["processed"] >= 5
     counts = read_output(tmp_path / "live.mcap")
     assert counts["/nmnet_node/matches"] == counts["/nmnet_node/relative_pose"] == s_live["processed"] - 1
@@ -362,11 +362,13 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     assert f"warning: {params}: 'max_keypoint' is not an nmnet_node parameter: ignored" in r.stderr
     s = json.loads((tmp_path / "a.json").read_text())
     assert s["status"] == {"first_frame": 1, "too_few_matches": 5} and 0 < s["matches_per_frame"] <= 300, s
+    assert s["parameters"]["max_keypoints"] == 300 and s["parameters"]["min_matches"] == 100000  # recorded in the summary
     params.write_text("/**:\n  ros__parameters:\n    max_keypoints: 300\n    pose_sigma_rotation_deg: 0.05\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "b.mcap"), "--json", str(tmp_path / "b.json"),
               "--params-file", str(params), "--max-keypoints", "600", "--no-progress")
     assert r.returncode == 0, r.stderr
-    assert 300 < json.loads((tmp_path / "b.json").read_text())["matches_per_frame"] <= 600
+    s = json.loads((tmp_path / "b.json").read_text())
+    assert 300 < s["matches_per_frame"] <= 600 and s["parameters"]["max_keypoints"] == 600
     from rosbags.highlevel import AnyReader
 
     with AnyReader([tmp_path / "b.mcap"]) as reader:  # the recorded covariance has the file's rotation sigma
