@@ -279,14 +279,17 @@ FLAGS = {"weights": "weights", "detector": "detector", "max_keypoints": "max_key
          "precision": "nmnet_precision"}  # replay option -> the node parameter it sets
 
 
+def given_options(args: argparse.Namespace) -> dict:
+    """The node parameters the command line sets (options given; ``--rectified`` only when present)."""
+    given = {name: str(v) if isinstance(v, Path) else v for flag, name in FLAGS.items() if (v := getattr(args, flag)) is not None}
+    return {**given, "rectified": True} if args.rectified else given
+
+
 def node_params(args: argparse.Namespace) -> dict:
     """The node parameters a replay runs with: the --params-file's (or the defaults), then the options given."""
     params = (read_params_file(args.params_file, warn=lambda m: print(f"warning: {m}", file=sys.stderr)) if args.params_file
               else {name: default for name, (default, _, _) in PARAMS.items()})
-    params.update({name: str(v) if isinstance(v, Path) else v for flag, name in FLAGS.items()
-                   if (v := getattr(args, flag)) is not None})
-    params["rectified"] = params["rectified"] or args.rectified
-    return params
+    return {**params, **given_options(args)}
 
 
 def main(args: argparse.Namespace) -> int:
@@ -356,15 +359,12 @@ def summary_json(summary: dict) -> str:
 def live_node_args(args: argparse.Namespace) -> list[str]:
     """The node's ``--ros-args`` for a live replay: the --params-file, then each option given as ``-p``."""
     out = ["--params-file", str(args.params_file)] if args.params_file else []
-    given = {name: getattr(args, flag) for flag, name in FLAGS.items() if getattr(args, flag) is not None}
-    if args.rectified:
-        given["rectified"] = "true"
-    for name, v in given.items():
-        out += ["-p", f"{name}:={v}"]
+    for name, v in given_options(args).items():
+        out += ["-p", f"{name}:={str(v).lower() if isinstance(v, bool) else v}"]
     return out
 
 
-def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None = None, params: dict | None = None) -> int:
+def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None, params: dict) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
     from .live import play_live, score_recording
 
