@@ -14,7 +14,7 @@ from mcap.writer import CompressionType, Writer
 
 from .bags import typestore
 from .imgconv import array_to_image_fields, matches_to_cloud_fields
-from .posemsg import DIR_SIGMA, ROT_SIGMA_DEG, relative_pose_of_current
+from .posemsg import SIGMAS, relative_pose_of_current
 
 if TYPE_CHECKING:  # the front end (and its network) is not needed to write a bag
     from .pipeline import FrameResult
@@ -23,7 +23,7 @@ if TYPE_CHECKING:  # the front end (and its network) is not needed to write a ba
 class McapOutput:
     """Writes the front end's outputs (matches, relative pose, debug image) to an .mcap file."""
 
-    def __init__(self, path: str | Path, pose_sigmas: tuple[float, float] = (ROT_SIGMA_DEG, DIR_SIGMA)) -> None:
+    def __init__(self, path: str | Path, pose_sigmas: tuple[float, float] = SIGMAS) -> None:
         """``pose_sigmas``: the relative poses' covariance, as the node's pose_sigma_* parameters."""
         self.path = Path(path)
         self.pose_sigmas = pose_sigmas

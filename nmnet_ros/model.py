@@ -27,12 +27,12 @@ DEFAULT_CONFIG: dict = {
 
 def input_width(config: dict) -> int:
     """Inputs per correspondence: the paper's 4 coordinates, plus the ratio when ``ratio_input``."""
-    return 5 if config.get("ratio_input", False) else 4
+    return 5 if config["ratio_input"] else 4
 
 
 def network_input(x0: np.ndarray, x1: np.ndarray, ratio: np.ndarray, config: dict) -> torch.Tensor:
     """(N, input_width) float32 input rows: normalised (x, y, x', y') and, when the config asks, the ratio."""
-    cols = [x0, x1, ratio[:, None]] if config.get("ratio_input", False) else [x0, x1]
+    cols = [x0, x1, ratio[:, None]] if config["ratio_input"] else [x0, x1]
     return torch.from_numpy(np.concatenate(cols, 1).astype(np.float32))
 
 

@@ -21,6 +21,7 @@ from .geometry import PoseEstimate
 ROT_SIGMA_DEG = 0.5  # per-axis rotation sigma at REF_MATCHES selected matches (the node's pose_sigma_rotation_deg)
 ROT_SIGMA_RAD = np.radians(ROT_SIGMA_DEG)
 DIR_SIGMA = 0.05  # per-axis sigma of the unit translation direction at REF_MATCHES (pose_sigma_direction)
+SIGMAS = (ROT_SIGMA_DEG, DIR_SIGMA)  # the default (rotation degrees, direction) at REF_MATCHES
 REF_MATCHES = 200
 NO_ESTIMATE_VAR = 1e6  # variance on every axis of a frame without an estimate
 
@@ -40,7 +41,7 @@ def rot_to_quat(R: np.ndarray) -> np.ndarray:
 
 
 def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches: int,
-                             sigmas: tuple[float, float] = (ROT_SIGMA_DEG, DIR_SIGMA)
+                             sigmas: tuple[float, float] = SIGMAS
                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(quaternion xyzw, translation direction, 6x6 covariance [x y z roll pitch yaw]) of T_prev_cur for a
     frame of ``status`` (a FrameResult's).
