@@ -379,3 +379,6 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "c.mcap"), "--params-file", str(params))
     assert r.returncode == 2 and f"{params}: pose_threshold_px: 0.0 is out of range 0.05 .. 10.0" in r.stderr, r.stderr
     assert not (tmp_path / "c.mcap").exists()
+    missing = tmp_path / "mine.pt"  # --weights reaches the network: a file that is not there is named
+    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "d.mcap"), "--weights", str(missing), "--no-progress")
+    assert r.returncode == 2 and f"{missing}: weights file not found" in r.stderr, r.stderr

@@ -357,8 +357,21 @@ def test_ratio_input_fine_tune_starts_as_the_checkpoint_and_is_kept(tmp_path):
            "init": str(weights_dir() / "nmnet.pt"), "ratio_input": True}
     train([f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path / "run", cfg, cache_dir=tmp_path / "cache")
     assert load_model(tmp_path / "run" / "best.pt").config["ratio_input"]
-    sel = build("nmnet", weights={"nmnet": str(tmp_path / "run" / "best.pt")})  # the selectors feed it the ratio
-    assert sel(to_correspondences(pair)).scores.shape == (len(pair.labels),)
+    # the selectors (the front end's, eval's) feed such weights each match's own ratio: their scores are the network's
+    # on pair_input's rows, and not those on another ratio (the ratio column is made to matter first)
+    ck = torch.load(tmp_path / "run" / "best.pt", weights_only=False)
+    ck["state_dict"]["embed.0.weight"][..., 4] = torch.linspace(-1.0, 1.0, ck["state_dict"]["embed.0.weight"].shape[0])[:, None, None]
+    torch.save(ck, tmp_path / "ratio.pt")
+    model = load_model(tmp_path / "ratio.pt")
+    x5, nb = pair_input(pair, model.config)
+    with torch.inference_mode():
+        expected = torch.sigmoid(model(x5, nb))[0].numpy()
+        x5[..., 4] = 1.0 - x5[..., 4]
+        other = torch.sigmoid(model(x5, nb))[0].numpy()
+    sel = build("nmnet", {"precision": "float32"}, {"nmnet": str(tmp_path / "ratio.pt")})
+    scores = sel(to_correspondences(pair)).scores
+    np.testing.assert_allclose(scores, expected, atol=1e-4)
+    assert np.abs(other - expected).max() > 0.1
     with pytest.raises(ValueError, match="trained with the ratio as an input; add --ratio-input"):
         train([seq], [seq], tmp_path / "out", {"init": str(tmp_path / "run" / "best.pt")}, cache_dir=tmp_path / "cache")
     with pytest.raises(ValueError, match="--resume: .*last.pt does not fit this run's network; resume with the options"):
