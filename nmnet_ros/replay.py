@@ -26,6 +26,7 @@ from .debug_view import draw_matches
 from .detectors import DETECTORS
 from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
+from .model import load_model
 from .params import PARAMS, frontend_config, pose_sigmas, read_params_file
 from .pipeline import RESTARTS, FrameResult, Frontend
 
@@ -89,18 +90,17 @@ class Run:
         }
 
 
-def process_bag(bag: Path, out: McapOutput | None, config: dict | None = None, gt_file: Path | None = None,
+def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_file: Path | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
                 log: Callable[[str], None] = print, camera: Camera | None = None,
                 rectified: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
-    """One pass of the front end over a bag; returns the run, the frame count and the last good image.
+    """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the last good image.
 
     ``camera``: the calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.
     """
     reader = BagReader(bag)
     frames, chosen = read_frames(reader, **(topics or {}), rectified=rectified)
     gt_tum = read_tum(gt_file) if gt_file else None
-    fe = Frontend(None, config)
     run = Run(fe.config["selector"])
     n_frames, prev_gt, overlay, last_note = 0, None, None, None
     bar = None
@@ -297,26 +297,29 @@ def main(args: argparse.Namespace) -> int:
     if not args.bag.exists():
         raise BagError(f"{args.bag}: no such bag")
     params = node_params(args)  # a bad parameters file stops here, naming it
-    out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
+    camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
     plots_dir = args.plots or args.out.parent
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
-    camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
     if args.live:
-        return main_live(args, out, camera, params)
+        if params["weights"]:
+            load_model(params["weights"])  # the node would stop on it; stop before the output file is made
+        return main_live(args, McapOutput(args.out, pose_sigmas(params)), camera, params)
     cfg = frontend_config(params)
     if args.selector is not None:
         cfg["selector"] = args.selector
+    fe = Frontend(None, cfg)  # bad weights stop here, before the output file is made
+    base_fe = Frontend(None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
+                              "resize_width": cfg["resize_width"]}) if args.baseline else None
+    out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
-        run, n, overlay = process_bag(args.bag, out, cfg, args.gt, args.debug_images, not args.no_progress, topics,
+        run, n, overlay = process_bag(args.bag, out, fe, args.gt, args.debug_images, not args.no_progress, topics,
                                       camera=camera, rectified=params["rectified"])
         runs.append(run)
-        if args.baseline:
-            base, _, _ = process_bag(args.bag, None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
-                                                      "resize_width": cfg["resize_width"]}, args.gt,
-                                     progress=not args.no_progress, topics=topics, camera=camera,
-                                     rectified=params["rectified"])
+        if base_fe is not None:
+            base, _, _ = process_bag(args.bag, None, base_fe, args.gt, progress=not args.no_progress, topics=topics,
+                                     camera=camera, rectified=params["rectified"])
             base.name = "SIFT+ratio+MAGSAC++"
             runs.append(base)
     except (KeyboardInterrupt, _Terminated):

@@ -327,6 +327,7 @@ def test_a_bag_without_camera_info_replays_with_a_calibration_file(raw_bag, tmp_
     bad.write_text("camera_matrix: {data: [0, 0, 0, 0, 0, 0, 0, 0, 1]}\n")
     r = nmnet("replay", str(bag), "--camera", str(bad), "--out", str(tmp_path / "b.mcap"))
     assert r.returncode == 2 and f"{bad}: camera focal lengths must be positive" in r.stderr, r.stderr
+    assert not (tmp_path / "b.mcap").exists()  # refused before the output file is made
 
 
 def test_a_bag_of_rectified_frames_replays_with_the_projection_matrix(raw_bag, tmp_path):
@@ -380,5 +381,8 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     assert r.returncode == 2 and f"{params}: pose_threshold_px: 0.0 is out of range 0.05 .. 10.0" in r.stderr, r.stderr
     assert not (tmp_path / "c.mcap").exists()
     missing = tmp_path / "mine.pt"  # --weights reaches the network: a file that is not there is named
-    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "d.mcap"), "--weights", str(missing), "--no-progress")
-    assert r.returncode == 2 and f"{missing}: weights file not found" in r.stderr, r.stderr
+    for mode in ((), ("--live",)):  # refused before the output file is made (the live node would stop on it)
+        r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "d.mcap"), "--weights", str(missing), "--no-progress",
+                  *mode)
+        assert r.returncode == 2 and f"{missing}: weights file not found" in r.stderr, (mode, r.stderr)
+        assert not (tmp_path / "d.mcap").exists(), mode
