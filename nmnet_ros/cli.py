@@ -8,7 +8,7 @@ import sys
 
 # top-level packages that come from the ROS 2 wheels (x86_64 Linux) or a sourced ROS 2 installation
 ROS_PACKAGES = frozenset({"rclpy", "rcl_interfaces", "builtin_interfaces", "sensor_msgs", "geometry_msgs", "std_msgs",
-                          "diagnostic_msgs", "rosidl_runtime_py", "rpyutils", "rosidl_parser"})
+                          "std_srvs", "diagnostic_msgs", "rosidl_runtime_py", "rpyutils", "rosidl_parser"})
 
 # subcommand -> (module, help); each module has add_arguments(parser) and main(args) -> int
 SUBCOMMANDS: dict[str, tuple[str, str]] = {

@@ -38,6 +38,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
+from std_srvs.srv import Trigger
 
 from .caminfo import camera_from_info, fit_camera
 from .dds import LARGE_FRAME_BYTES, follow_reliability, large_frames_advice, silence_advice, where_are_the_images
@@ -82,6 +83,7 @@ class Stats:
     processed: int = 0
     dropped: int = 0
     estimated: int = 0  # relative poses with an estimate (ok, no_motion)
+    resets: int = 0  # ~/reset calls
     warnings: dict[str, int] = field(default_factory=dict)
     latency_ms: deque = field(default_factory=lambda: deque(maxlen=100))
     stage_ms: dict[str, deque] = field(default_factory=dict)
@@ -128,6 +130,7 @@ class NMNetNode(Node):
         self._last_stamp: float | None = None
         self._size: tuple[int, int] | None = None
         self._warned: dict[str, float] = {}
+        self._reset_due = False  # ~/reset: stage 2 forgets the previous frame before the next one
 
         self._image_type, self._image_topic = (CompressedImage, "image/compressed") if p["use_compressed"] else (Image, "image")
         self._image_sub = None
@@ -145,6 +148,7 @@ class NMNetNode(Node):
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "~/relative_pose", 10)
         self.pub_debug = self.create_publisher(Image, "~/debug_image", 2)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_timer(1.0, self._tick)
         # Two stages on two threads: detection of frame t+1 overlaps matching/NM-Net/pose of frame t
         # (OpenCV and torch release the GIL). Each frame's features are computed once and handed over.
@@ -173,6 +177,20 @@ class NMNetNode(Node):
         if changed:
             self.get_logger().info(f"parameters changed: {changed} (from the next frame)")
         return SetParametersResult(successful=True)
+
+    def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """``~/reset`` (std_srvs/Trigger): the next frame starts a new chain, as after a time jump.
+
+        For a back end that re-initialises (relocalisation, a robot carried elsewhere): the next frame's
+        relative_pose says "no estimate" instead of relating it to the frame before the call. Stage 2 applies
+        it before its next frame, so a frame in flight is never related to a forgotten one.
+        """
+        with self._cv:
+            self._reset_due = True
+        self.stats.resets += 1
+        self.get_logger().info("reset requested: the next frame starts a new chain")
+        response.success, response.message = True, "the next frame starts a new chain (its relative_pose: no estimate)"
+        return response
 
     # -- input ------------------------------------------------------------------------------
     def _subscribe_image(self, reliable: bool) -> None:
@@ -335,6 +353,10 @@ class NMNetNode(Node):
         return _Detected(msg.header, img, self.frontend.prepare(img), stamp, {"decode": 1000 * (t_dec - t)}, t_recv)
 
     def _finish(self, d: _Detected) -> None:
+        with self._cv:
+            reset, self._reset_due = self._reset_due, False
+        if reset:
+            self.frontend.reset()
         result = self.frontend.process_prepared(d.prepared, d.stamp, d.timings)
         self.stats.processed += 1
         self._publish(d.header, d.img, result)
@@ -385,7 +407,7 @@ class NMNetNode(Node):
         lat = np.array(s.latency_ms) if s.latency_ms else np.zeros(1)
         values = {
             "frames_received": s.received, "frames_processed": s.processed, "frames_dropped": s.dropped,
-            "poses_estimated": s.estimated, "rate_hz": round(s.processed / elapsed, 3),
+            "poses_estimated": s.estimated, "chain_resets": s.resets, "rate_hz": round(s.processed / elapsed, 3),
             "latency_p50_ms": round(float(np.percentile(lat, 50)), 1), "latency_p90_ms": round(float(np.percentile(lat, 90)), 1),
             "input_qos": "reliable" if self.image_reliable else "best_effort",
             "keypoints": s.last_keypoints, "matches": s.last_matches, "selected": s.last_selected, "last_status": s.last_status,

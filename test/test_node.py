@@ -491,6 +491,39 @@ def published_scores(peer: Peer, stamp: float) -> np.ndarray:
     return published_matches(peer, stamp)[:, 4]
 
 
+def send_frame(peer: Peer, seq: Sequence, i: int, stamp: float) -> np.ndarray:
+    """Publish camera_info and frame ``i`` of ``seq`` stamped ``stamp``; the scores of the matches published for it."""
+    peer.pub_info.publish(kitti_info(seq))
+    peer.pub_img.publish(image_msg(seq.image(i), stamp))
+    return published_scores(peer, stamp)
+
+
+def test_reset_service_restarts_the_chain(ros, tmp_path):
+    """~/reset (std_srvs/Trigger), as a back end that re-initialises calls it: the next frame is not related to the
+    frame before the call (no estimate, no matches), the one after it is; counted in diagnostics."""
+    from std_srvs.srv import Trigger
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    node = NodeProcess(["--ros-args", "-p", "max_keypoints:=1000"], ros, tmp_path / "node.log")
+    peer = Peer()
+    try:
+        peer.wait_connected()
+        peer.first_frame(kitti_info(seq), image_msg(seq.image(60), 1.0))
+        assert len(send_frame(peer, seq, 61, 2.0)) > 50 and not no_estimate(peer.pose_for(2.0))
+        client = peer.node.create_client(Trigger, "/nmnet_node/reset")
+        assert client.wait_for_service(timeout_sec=10.0), "no ~/reset service"
+        fut = client.call_async(Trigger.Request())
+        rclpy.spin_until_future_complete(peer.node, fut, timeout_sec=10.0)
+        assert fut.result() is not None and fut.result().success, fut.result()
+        assert len(send_frame(peer, seq, 62, 3.0)) == 0 and no_estimate(peer.pose_for(3.0))  # a new chain starts here
+        assert len(send_frame(peer, seq, 63, 4.0)) > 50 and not no_estimate(peer.pose_for(4.0))  # related to frame 62
+        assert spin_until(peer.node, lambda: peer.count("chain_resets") == 1, 5.0), peer.diag_values()
+    finally:
+        peer.close()
+        node.stop()
+    assert "reset requested: the next frame starts a new chain" in node.output()
+
+
 def test_parameters_change_while_running(ros, tmp_path):
     """`ros2 param set` on a running node: a new NM-Net cut, pose estimator, resize_width, min_matches, static_flow_px,
     time_jump_s and the covariance's sigmas act from the next frame;
@@ -505,9 +538,7 @@ def test_parameters_change_while_running(ros, tmp_path):
         peer.first_frame(kitti_info(seq), image_msg(seq.image(40), 1.0))
 
         def frame(i: int, stamp: float) -> np.ndarray:
-            peer.pub_info.publish(kitti_info(seq))
-            peer.pub_img.publish(image_msg(seq.image(i), stamp))
-            return published_scores(peer, stamp)
+            return send_frame(peer, seq, i, stamp)
 
         calibrated = frame(41, 2.0)
         assert calibrated.min() < 0.95 and len(np.unique(calibrated)) > 1  # NM-Net probabilities from the calibrated cut
