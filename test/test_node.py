@@ -701,7 +701,7 @@ def test_launch_file_gives_the_tested_invocation():
 
 def test_the_package_installs_launch_config_and_ament_index(tmp_path):
     """A wheel of the package (what pip and colcon's ament_python install) carries the launch file, the
-    params file, package.xml and the ament index marker under share/, and both console scripts."""
+    params file, package.xml and the ament index marker under share/, both console scripts and the licence."""
     import shutil
     import subprocess
     import sys
@@ -718,6 +718,7 @@ def test_the_package_installs_launch_config_and_ament_index(tmp_path):
             "share/ament_index/resource_index/packages/nmnet_ros"} <= share
     entry = next(zipfile.ZipFile(wheel).read(n).decode() for n in names if n.endswith("entry_points.txt"))
     assert "nmnet_node = nmnet_ros.cli:node_main" in entry and "nmnet = nmnet_ros.cli:main" in entry
+    assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), [n for n in names if "dist-info" in n]
 
 
 def test_lasting_warnings_repeat_ever_less_often_until_cleared(ros, monkeypatch):
