@@ -43,8 +43,47 @@ def ros_missing(e: ImportError) -> str | None:
             "installation first (`source /opt/ros/kilted/setup.bash`), from a Python of the version it was built for")
 
 
+NODE_USAGE = """usage: nmnet_node [-h] [--ros-args [-p NAME:=VALUE]... [--params-file FILE] [-r FROM:=TO]...]
+
+NM-Net visual-odometry front end: camera frames in, selected matches and relative pose out.
+
+subscribes  image (sensor_msgs/Image), or image/compressed (sensor_msgs/CompressedImage) with use_compressed:=true;
+            camera_info (sensor_msgs/CameraInfo)
+publishes   ~/matches (sensor_msgs/PointCloud2: u0 v0 u1 v1 score per selected match),
+            ~/relative_pose (geometry_msgs/PoseWithCovarianceStamped: the current camera in the previous one's
+            frame, unit translation direction), ~/debug_image (sensor_msgs/Image), /diagnostics
+service     ~/reset (std_srvs/srv/Trigger): the next frame starts a new chain
+
+example     nmnet_node --ros-args -r image:=/camera/image_raw -r camera_info:=/camera/camera_info \\
+                -p max_keypoints:=1000 --params-file config/nmnet.yaml
+
+parameters (default; range or choices; * = set at start-up only):
+"""
+
+
+def node_help(width: int = 100) -> str:
+    """``nmnet_node --help``: how to start the node, its topics and service, every parameter with its default and range."""
+    import json
+    import textwrap
+
+    from .params import PARAMS, STARTUP_ONLY
+
+    lines = [NODE_USAGE.rstrip("\n")]
+    for name, (default, desc, rng) in PARAMS.items():
+        limits = "" if rng is None else "; " + (" | ".join(rng) if isinstance(rng[0], str) else f"{rng[0]} .. {rng[1]}")
+        lines.append(f"  {name}{' *' if name in STARTUP_ONLY else ''} ({json.dumps(default)}{limits})")
+        lines += textwrap.wrap(desc, width, initial_indent=" " * 6, subsequent_indent=" " * 6)
+    return "\n".join(lines) + "\n"
+
+
 def node_main(args: list[str] | None = None) -> int:
-    """Entry point of the ``nmnet_node`` console script: the node, or one line saying which ROS package is missing."""
+    """Entry point of the ``nmnet_node`` console script: the node, its ``--help``, or one line saying which ROS
+    package is missing."""
+    argv = sys.argv if args is None else args
+    own = argv[1:argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]  # the arguments before ROS's
+    if "-h" in own or "--help" in own:
+        print(node_help(), end="")
+        return 0
     try:
         from .node import main
     except ImportError as e:

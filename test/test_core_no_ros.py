@@ -56,6 +56,26 @@ def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
         assert list(make_reader(f).iter_messages()) == []
 
 
+def test_node_help_lists_topics_service_and_every_parameter_without_ros(tmp_path):
+    """`nmnet_node --help` prints the usage, topics, the reset service and every parameter with its default and
+    range (from params.PARAMS, so it cannot drift), without starting the node, so also without ROS; a -h among the
+    ROS arguments is a parameter value, not a request for help."""
+    from nmnet_ros.params import PARAMS, STARTUP_ONLY
+
+    done = _without_ros("from nmnet_ros.cli import node_main\nsys.exit(node_main(['nmnet_node', '--help']))", tmp_path)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    out = done.stdout
+    assert out.startswith("usage: nmnet_node") and "~/reset (std_srvs/srv/Trigger)" in out and "~/relative_pose" in out
+    for name, (default, _, rng) in PARAMS.items():
+        line = next((x for x in out.splitlines() if x.startswith(f"  {name} ")), None)
+        assert line is not None, name
+        assert line.startswith(f"  {name} *" if name in STARTUP_ONLY else f"  {name} ("), line
+        assert json.dumps(default) in line and (rng is None or str(rng[-1]) in line), line
+    ros_value = _without_ros("from nmnet_ros.cli import node_main\n"
+                             "sys.exit(node_main(['nmnet_node', '--ros-args', '-p', 'weights:=-h']))", tmp_path)
+    assert ros_value.returncode == 2 and "'rclpy' is missing" in ros_value.stderr  # went on to start the node
+
+
 def test_demo_runs_its_offline_part_without_ros(tmp_path):
     """The offline tools need no ROS: `nmnet demo` skips the live part with the note and replays the sample
     bag offline, next to the SIFT baseline; its output holds the node's topics."""
