@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import signal
 import time
+from contextlib import contextmanager
 
 import cv2
 import numpy as np
@@ -498,17 +499,28 @@ def send_frame(peer: Peer, seq: Sequence, i: int, stamp: float) -> np.ndarray:
     return published_scores(peer, stamp)
 
 
-def test_reset_service_restarts_the_chain(ros, tmp_path):
-    """~/reset (std_srvs/Trigger), as a back end that re-initialises calls it: the next frame is not related to the
-    frame before the call (no estimate, no matches), the one after it is; counted in diagnostics."""
-    from std_srvs.srv import Trigger
-
+@contextmanager
+def kitti_node(ros: dict, tmp_path, first: int):
+    """A node at 1000 keypoints and a peer, the node having processed KITTI-07 frame ``first`` stamped 1.0 s:
+    yields (sequence, peer, node); both are stopped on leaving, so ``node.output()`` is complete after it."""
     seq = Sequence.load(data_dir("kitti-07"))
     node = NodeProcess(["--ros-args", "-p", "max_keypoints:=1000"], ros, tmp_path / "node.log")
     peer = Peer()
     try:
         peer.wait_connected()
-        peer.first_frame(kitti_info(seq), image_msg(seq.image(60), 1.0))
+        peer.first_frame(kitti_info(seq), image_msg(seq.image(first), 1.0))
+        yield seq, peer, node
+    finally:
+        peer.close()
+        node.stop()
+
+
+def test_reset_service_restarts_the_chain(ros, tmp_path):
+    """~/reset (std_srvs/Trigger), as a back end that re-initialises calls it: the next frame is not related to the
+    frame before the call (no estimate, no matches), the one after it is; counted in diagnostics."""
+    from std_srvs.srv import Trigger
+
+    with kitti_node(ros, tmp_path, 60) as (seq, peer, node):
         assert len(send_frame(peer, seq, 61, 2.0)) > 50 and not no_estimate(peer.pose_for(2.0))
         client = peer.node.create_client(Trigger, "/nmnet_node/reset")
         assert client.wait_for_service(timeout_sec=10.0), "no ~/reset service"
@@ -518,9 +530,6 @@ def test_reset_service_restarts_the_chain(ros, tmp_path):
         assert len(send_frame(peer, seq, 62, 3.0)) == 0 and no_estimate(peer.pose_for(3.0))  # a new chain starts here
         assert len(send_frame(peer, seq, 63, 4.0)) > 50 and not no_estimate(peer.pose_for(4.0))  # related to frame 62
         assert spin_until(peer.node, lambda: peer.count("chain_resets") == 1, 5.0), peer.diag_values()
-    finally:
-        peer.close()
-        node.stop()
     assert "reset requested: the next frame starts a new chain" in node.output()
 
 
@@ -530,12 +539,7 @@ def test_parameters_change_while_running(ros, tmp_path):
     a bad choice, a missing weights file, a start-up-only parameter, a value out of range and one of the
     wrong type are refused with the reason,
     and the node keeps its settings and keeps running."""
-    seq = Sequence.load(data_dir("kitti-07"))
-    node = NodeProcess(["--ros-args", "-p", "max_keypoints:=1000"], ros, tmp_path / "node.log")
-    peer = Peer()
-    try:
-        peer.wait_connected()
-        peer.first_frame(kitti_info(seq), image_msg(seq.image(40), 1.0))
+    with kitti_node(ros, tmp_path, 40) as (seq, peer, node):
 
         def frame(i: int, stamp: float) -> np.ndarray:
             return send_frame(peer, seq, i, stamp)
@@ -583,9 +587,6 @@ def test_parameters_change_while_running(ros, tmp_path):
         n = len(frame(50, 10.0))
         cov = np.asarray(peer.pose_for(10.0).pose.covariance).reshape(6, 6)
         np.testing.assert_allclose(np.diag(cov), [0.004**2 * 200 / n] * 3 + [np.radians(0.05) ** 2 * 200 / n] * 3, rtol=1e-9)
-    finally:
-        peer.close()
-        node.stop()
     assert "parameters changed: {'score_threshold': 0.95}" in node.output()
     assert "NM-Net arithmetic: " in node.output()  # what the network runs in on this CPU, said at start-up
 
