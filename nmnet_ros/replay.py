@@ -27,7 +27,7 @@ from .detectors import DETECTORS
 from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose
 from .mcap_out import McapOutput
 from .model import load_model
-from .params import PARAMS, frontend_config, pose_sigmas, read_params_file
+from .params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
 from .pipeline import RESTARTS, FrameResult, Frontend
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
@@ -260,7 +260,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the node's parameters file (config/nmnet.yaml's form): replay with the settings the node runs; "
                         "the options below, when given, override it")
     p.add_argument("--selector", default=None, help="correspondence selector (see nmnet eval; default: the node's "
-                   "pose_estimator, nmnet+ratio+magsac)")
+                   "pose_estimator, nmnet+ratio+magsac; with --live one the node runs, as its pose_estimator)")
     p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (the node's weights; default: shipped)")
     p.add_argument("--detector", default=None, choices=sorted(DETECTORS), help="local feature frames (default: hessian-affine-fast)")
     p.add_argument("--max-keypoints", type=int, default=None, help="keypoints per frame (default: 2000)")
@@ -279,9 +279,15 @@ FLAGS = {"weights": "weights", "detector": "detector", "max_keypoints": "max_key
          "precision": "nmnet_precision"}  # replay option -> the node parameter it sets
 
 
+NODE_ESTIMATORS = {selector: estimator for estimator, selector in SELECTORS.items()}  # selector -> pose_estimator
+
+
 def given_options(args: argparse.Namespace) -> dict:
-    """The node parameters the command line sets (options given; ``--rectified`` only when present)."""
+    """The node parameters the command line sets (options given; ``--rectified`` only when present; a --selector the
+    node runs as its ``pose_estimator``)."""
     given = {name: str(v) if isinstance(v, Path) else v for flag, name in FLAGS.items() if (v := getattr(args, flag)) is not None}
+    if args.selector in NODE_ESTIMATORS:
+        given["pose_estimator"] = NODE_ESTIMATORS[args.selector]
     return {**given, "rectified": True} if args.rectified else given
 
 
@@ -301,6 +307,9 @@ def main(args: argparse.Namespace) -> int:
     plots_dir = args.plots or args.out.parent
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
     if args.live:
+        if args.selector is not None and args.selector not in NODE_ESTIMATORS:
+            raise ValueError(f"--selector {args.selector}: the node runs {', '.join(NODE_ESTIMATORS)} (its pose_estimator); "
+                             "replay without --live for the others")
         if params["weights"]:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
         return main_live(args, McapOutput(args.out, pose_sigmas(params)), camera, params)

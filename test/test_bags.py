@@ -366,10 +366,11 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     assert s["parameters"]["max_keypoints"] == 300 and s["parameters"]["min_matches"] == 100000  # recorded in the summary
     params.write_text("/**:\n  ros__parameters:\n    max_keypoints: 300\n    pose_sigma_rotation_deg: 0.05\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "b.mcap"), "--json", str(tmp_path / "b.json"),
-              "--params-file", str(params), "--max-keypoints", "600", "--no-progress")
+              "--params-file", str(params), "--max-keypoints", "600", "--selector", "ratio+magsac", "--no-progress")
     assert r.returncode == 0, r.stderr
     s = json.loads((tmp_path / "b.json").read_text())
     assert 300 < s["matches_per_frame"] <= 600 and s["parameters"]["max_keypoints"] == 600
+    assert s["selector"] == "ratio+magsac" and s["parameters"]["pose_estimator"] == "classic"  # the node's name for it
     from rosbags.highlevel import AnyReader
 
     with AnyReader([tmp_path / "b.mcap"]) as reader:  # the recorded covariance has the file's rotation sigma
@@ -386,3 +387,6 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
                   *mode)
         assert r.returncode == 2 and f"{missing}: weights file not found" in r.stderr, (mode, r.stderr)
         assert not (tmp_path / "d.mcap").exists(), mode
+    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "e.mcap"), "--selector", "gms", "--live")  # not a node's
+    assert r.returncode == 2 and "--selector gms: the node runs nmnet, nmnet+magsac, " in r.stderr, r.stderr
+    assert not (tmp_path / "e.mcap").exists()
