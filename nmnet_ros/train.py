@@ -9,6 +9,7 @@ The best checkpoint by validation F-measure is kept; ``last.pt`` makes a run res
 ``--thin-inliers`` lowers some samples' inlier ratio to that of wide-baseline pairs;
 ``--turn-deg`` pans/tilts the second camera (labels recomputed) for the large rotations of turns.
 ``--balance`` gives small folders (the wide-baseline Strecha scenes) a larger share of the samples.
+``--ess-loss`` adds Yi et al.'s essential-matrix regression (not in NM-Net's paper) to the classification loss.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import torch
 from .cache import FeatureCache
 from .datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
-from .geometry import apply_homography, homography_jacobian
+from .geometry import apply_homography, essential_from_pose, homography_jacobian
 from .metrics import prf
 from .model import NMNet, WeightsError, load_model, network_input
 from .neighbors import mine_neighbors
@@ -55,6 +56,7 @@ DEFAULT_CONFIG: dict = {
     "turn_deg": 0.0,  # turn the second camera about its centre by up to this many degrees (see ``turn_camera``); 0 = off
     "balance": 0.0,  # 0 = every training pair equally often; 1 = every training folder equally often (see ``pair_weights``)
     "ratio_input": False,  # give the network each match's descriptor distance ratio as a fifth input (see ``_init_model``)
+    "ess_loss": 0.0,  # weight of the essential-matrix regression term (see ``essential_loss``); 0 = the paper's loss
 }
 
 MAX_ROLL_DEG = 10.0  # per-image camera roll drawn from +-this when augmenting
@@ -163,18 +165,19 @@ def turn_camera(pair: PairData, turn: np.ndarray,
 
 
 def draw_sample(rng: np.random.Generator, pair: PairData, c: dict) -> tuple[np.ndarray, tuple | None, tuple | None, np.ndarray]:
-    """One training sample of a pair: (match indices, augmentation, turned (k1, a1, x1) or None, their labels).
+    """One training sample of a pair: (match indices, augmentation, turned (k1, a1, x1, turn) or None, their labels).
 
     Draws in a fixed order from ``rng`` (turn, matches, augmentation), each only when its option
     is on, so runs without an option draw the same stream as before it existed.
     """
     labels, turned, pool = pair.labels, None, None
     if c["turn_deg"] > 0:
-        k1, a1, x1, turned_labels, inside = turn_camera(pair, draw_turn(rng, c["turn_deg"]), c["label_threshold"])
+        turn = draw_turn(rng, c["turn_deg"])
+        k1, a1, x1, turned_labels, inside = turn_camera(pair, turn, c["label_threshold"])
         # the sample stays as it was when the turn leaves too few inliers, or fewer matches than a sample
         # takes, in view (filling it up would repeat matches: twins, perfectly compatible neighbours)
         if turned_labels[inside].sum() >= c["min_inliers"] and inside.sum() >= c["num_corr"]:
-            labels, turned, pool = turned_labels, (k1, a1, x1), np.flatnonzero(inside)
+            labels, turned, pool = turned_labels, (k1, a1, x1, turn), np.flatnonzero(inside)
     drawn = sample_correspondences(rng, labels if pool is None else labels[pool], c["num_corr"], c["thin_inliers"])
     sel = drawn if pool is None else pool[drawn]
     return sel, draw_augmentation(rng) if c["augment"] else None, turned, labels[sel]
@@ -193,12 +196,12 @@ def pair_input(pair: PairData, config: dict, sel: np.ndarray | None = None,
 
     ``config``: the model's (neighbour kind, k, whether the ratio is an input).
 
-    ``turned``: the second view's (k1, a1, x1) from ``turn_camera``, for every match of the pair.
+    ``turned``: the second view's (k1, a1, x1) from ``turn_camera`` for every match of the pair, and the turn.
     """
     x0, x1 = pair.normalized()
     k0, k1, a0, a1, ratio = pair.k0, pair.k1, pair.a0, pair.a1, pair.matches.ratio
     if turned is not None:
-        k1, a1, x1 = turned
+        k1, a1, x1 = turned[:3]
     if sel is not None:
         x0, x1, k0, k1, a0, a1, ratio = (v[sel] for v in (x0, x1, k0, k1, a0, a1, ratio))
     if augmentation is not None:
@@ -212,6 +215,45 @@ def pair_input(pair: PairData, config: dict, sel: np.ndarray | None = None,
         a0, a1 = M0 @ a0, M1 @ a1
     nb = mine_neighbors(config["neighbors"], k0, a0, k1, a1, config["k"])
     return network_input(x0, x1, ratio, config)[None], torch.from_numpy(nb)[None]
+
+
+def sample_essential(pair: PairData, augmentation: tuple[bool, bool, float, float] | None = None,
+                     turned: tuple | None = None) -> np.ndarray:
+    """Unit-norm ground-truth essential matrix of a training sample, in the coordinates ``pair_input`` gives the network.
+
+    A turn rotates the second camera (R' = turn R, t' = turn t); a swap transposes E; the mirror and
+    rolls map each normalised image plane by an orthogonal M (x' = M x), so E' = H1 E H0^T with H = diag(M, 1).
+    """
+    R, t = pair.R, pair.t
+    if turned is not None:
+        R, t = turned[3] @ R, turned[3] @ t
+    E = essential_from_pose(R, t)
+    if augmentation is not None:
+        swap, mirror, roll0, roll1 = augmentation
+        if swap:
+            E = E.T
+        H0, H1 = np.eye(3), np.eye(3)
+        H0[:2, :2], H1[:2, :2] = _roll(roll0, mirror), _roll(roll1, mirror)
+        E = H1 @ E @ H0.T
+    return E / np.linalg.norm(E)
+
+
+def essential_loss(logits: torch.Tensor, x: torch.Tensor, E_gt: torch.Tensor) -> torch.Tensor:
+    """Yi et al. (CVPR 2018)'s regression loss: min(|e - e_gt|^2, |e + e_gt|^2) per sample, averaged.
+
+    e is the unit-norm essential matrix of the eight-point algorithm weighted by relu(tanh(logit)),
+    the weights the ``nmnet`` selector estimates its pose with: the term rewards scores that fit the
+    true geometry well, beyond telling inliers from outliers. ``x``: (B, N, >=4) network input
+    (normalised x, y, x', y'); ``E_gt``: (B, 3, 3) unit-norm, from ``sample_essential``.
+    """
+    w = torch.relu(torch.tanh(logits)).double()
+    x0, y0, x1, y1 = (x[..., i].double() for i in range(4))
+    X = torch.stack([x1 * x0, x1 * y0, x1, y1 * x0, y1 * y0, y1, x0, y0, torch.ones_like(x0)], -1)
+    XwX = X.transpose(1, 2) @ (X * w[..., None])
+    e = torch.linalg.eigh(XwX)[1][..., 0]  # eigenvector of the smallest eigenvalue, unit norm
+    g = E_gt.reshape(-1, 9).double()
+    d = torch.minimum(((e - g) ** 2).sum(-1), ((e + g) ** 2).sum(-1))
+    return d.float().mean()
 
 
 def balanced_bce(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
@@ -314,6 +356,8 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         raise ValueError(f"--thin-inliers is a probability in [0, 1], got {c['thin_inliers']}")
     if not 0 <= c["turn_deg"] <= MAX_TURN_DEG:
         raise ValueError(f"--turn-deg must be in [0, {MAX_TURN_DEG:g}] degrees (0 = off), got {c['turn_deg']}")
+    if not c["ess_loss"] >= 0:
+        raise ValueError(f"--ess-loss is a weight >= 0 (0 = classification loss only), got {c['ess_loss']}")
     if not 0 <= c["balance"] <= 1:
         raise ValueError(f"--balance must be in [0, 1] (0 = pairs equally often, 1 = folders equally often), got {c['balance']}")
     if c["turn_deg"] > 0:
@@ -375,8 +419,12 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
                 batch.append((train_pairs[pi], *draw_sample(rng, train_pairs[pi], c)))
             inputs = list(pool.map(lambda b: pair_input(b[0], model.config, b[1], b[2], b[3]), batch))
             ys = [torch.from_numpy(b[4].astype(np.float32))[None] for b in batch]
-            logits = model(torch.cat([x for x, _ in inputs]).to(device), torch.cat([nb for _, nb in inputs]).to(device))
+            x = torch.cat([x for x, _ in inputs]).to(device)
+            logits = model(x, torch.cat([nb for _, nb in inputs]).to(device))
             loss = balanced_bce(logits, torch.cat(ys).to(device))
+            if c["ess_loss"] > 0:
+                E_gt = torch.from_numpy(np.stack([sample_essential(b[0], b[2], b[3]) for b in batch])).to(device)
+                loss = loss + c["ess_loss"] * essential_loss(logits, x, E_gt)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -434,6 +482,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "labels recomputed, matches turned out of the image dropped); 0 = off")
     p.add_argument("--ratio-input", action="store_true",
                    help="give the network each match's descriptor distance ratio as a fifth input (not in the paper)")
+    p.add_argument("--ess-loss", type=float, default=DEFAULT_CONFIG["ess_loss"], metavar="W",
+                   help="add W x the essential-matrix regression loss of Yi et al. 2018 (not in the NM-Net paper); 0 = off")
     p.add_argument("--balance", type=float, default=DEFAULT_CONFIG["balance"], metavar="B",
                    help="share of the samples per --train folder: proportional to its pair count ** (1 - B); "
                         "0 = every pair equally often, 1 = every folder equally often")
@@ -450,7 +500,7 @@ def parse_gaps(text: str) -> tuple[int, ...]:
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet train``."""
     keys = ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr", "device", "workers",
-            "detector", "label_threshold", "augment", "thin_inliers", "turn_deg", "balance", "ratio_input")
+            "detector", "label_threshold", "augment", "thin_inliers", "turn_deg", "balance", "ratio_input", "ess_loss")
     cfg = {k: getattr(args, k) for k in keys}
     cfg["init"] = str(args.init) if args.init else None
     cfg["gaps"] = parse_gaps(args.gaps)

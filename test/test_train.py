@@ -22,10 +22,12 @@ from nmnet_ros.train import (
     draw_augmentation,
     draw_sample,
     draw_turn,
+    essential_loss,
     load_pairs,
     pair_input,
     pair_weights,
     sample_correspondences,
+    sample_essential,
     train,
     turn_camera,
 )
@@ -131,7 +133,8 @@ def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
                                                      ("turn_deg", -5.0, "--turn-deg must be in"),
                                                      ("turn_deg", 90.0, "--turn-deg must be in"),
                                                      ("balance", -0.5, "--balance must be in"),
-                                                     ("balance", 1.5, "--balance must be in")])
+                                                     ("balance", 1.5, "--balance must be in"),
+                                                     ("ess_loss", -0.1, "--ess-loss is a weight >= 0")])
 def test_option_out_of_range_is_a_clear_error(tmp_path, key, value, match):
     seq = str(data_dir("strecha-fountain-p11"))
     with pytest.raises(ValueError, match=match):
@@ -220,6 +223,42 @@ def test_turn_is_a_rotation_of_the_second_camera(tmp_path):
     assert not ((k1[~inside] >= 0).all(1) & (k1[~inside, 0] < w) & (k1[~inside, 1] < h)).any()
 
 
+def test_essential_loss_measures_the_weighted_eight_point_against_the_samples_true_geometry(tmp_path):
+    """sample_essential follows every augmentation and turn; the loss is ~0 for the true inliers' weights."""
+    pair = _fountain_pair(tmp_path)
+    c = {"turn_deg": 25.0, "augment": True, "thin_inliers": 0.0, "num_corr": 500, "min_inliers": 5,
+         "label_threshold": 1e-4}
+    rng = np.random.default_rng(2)
+    kinds, posed = set(), 0
+    for _ in range(6):
+        sel, aug, turned, labels = draw_sample(rng, pair, c)
+        kinds.add((turned is not None, aug[0]))
+        x, _ = pair_input(pair, MODEL_CONFIG, sel, aug, turned)
+        E = sample_essential(pair, aug, turned)
+        assert abs(np.linalg.norm(E) - 1) < 1e-9
+        d = sym_epipolar_sq(E, x[0, :, :2].double().numpy(), x[0, :, 2:4].double().numpy())
+        # the sample's labels are its distances under E (the input is float32: a 10 % margin at the threshold)
+        assert (d[labels] < 1.1e-4).all() and (d[~labels] > 0.9e-4).all() and labels.any() and not labels.all()
+        E_gt = torch.from_numpy(E[None])
+        truth = torch.from_numpy(np.where(labels, 5.0, -5.0)[None]).float()
+        # the true inliers' eight-point is the true E (up to sign) where it is well posed: not when the two
+        # smallest eigenvalues nearly meet (a turn can leave inliers on a near-critical surface)
+        X = torch.stack([x[0, labels, 2] * x[0, labels, 0], x[0, labels, 2] * x[0, labels, 1], x[0, labels, 2],
+                         x[0, labels, 3] * x[0, labels, 0], x[0, labels, 3] * x[0, labels, 1], x[0, labels, 3],
+                         x[0, labels, 0], x[0, labels, 1], torch.ones(int(labels.sum()))], 1).double()
+        ev = torch.linalg.eigvalsh(X.T @ X)
+        if ev[1] > 5 * ev[0]:
+            posed += 1
+            assert essential_loss(truth, x, E_gt) < 1e-2
+        assert essential_loss(torch.full_like(truth, 3.0), x, E_gt) > 0.5  # every match alike: outliers pull it away
+        # the sign of E does not matter, and the loss reaches the logits
+        assert abs(essential_loss(truth, x, -E_gt) - essential_loss(truth, x, E_gt)) < 1e-6
+        logits = torch.zeros_like(truth).normal_(0.5, 1.0).requires_grad_()
+        essential_loss(logits, x, E_gt).backward()
+        assert torch.isfinite(logits.grad).all() and logits.grad.abs().sum() > 0
+    assert {k[1] for k in kinds} == {False, True} and any(k[0] for k in kinds) and posed >= 4  # swapped or not, turned
+
+
 def test_turn_on_a_distorted_camera_is_a_clear_error(tmp_path):
     euroc, fountain = str(data_dir("euroc-v101-cam0")), str(data_dir("strecha-fountain-p11"))
     with pytest.raises(ValueError, match="--turn-deg: .*euroc-v101-cam0/camera.yaml has lens distortion"):
@@ -228,7 +267,7 @@ def test_turn_on_a_distorted_camera_is_a_clear_error(tmp_path):
 
 
 @pytest.mark.parametrize(("key", "on", "off"), [("augment", True, False), ("thin_inliers", 1.0, 0.0),
-                                                ("turn_deg", 25.0, 0.0)])
+                                                ("turn_deg", 25.0, 0.0), ("ess_loss", 1.0, 0.0)])
 def test_training_option_is_seeded_and_changes_the_batches(tmp_path, key, on, off):
     seq = str(data_dir("strecha-fountain-p11"))
     cfg = {"epochs": 1, "steps_per_epoch": 2, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1}
