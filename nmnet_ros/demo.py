@@ -29,9 +29,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _without_ros() -> str | None:
     """Why the live part cannot run here (rclpy or a message package missing), or None."""
+    from .live import require_ros
+
     try:
-        import rclpy  # noqa: F401 - the live part plays the bag over DDS from this process
-        from sensor_msgs.msg import CompressedImage  # noqa: F401
+        require_ros()
     except ImportError as e:
         return ros_missing(e)
     return None

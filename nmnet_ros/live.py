@@ -31,6 +31,16 @@ from .replay import frame_error
 NODE_NAME = "nmnet_node"
 
 
+def require_ros() -> None:
+    """Import what the live mode runs on (rclpy, the message packages); a missing one raises ImportError naming it.
+
+    Called before anything is written, so a machine without ROS leaves no empty output behind.
+    """
+    import rclpy  # noqa: F401 - the player runs in this process, the node in its own
+    from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: F401
+    from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: F401
+
+
 def _rclpy_type(msgtype: str):
     import importlib
 

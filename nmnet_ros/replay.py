@@ -307,6 +307,9 @@ def main(args: argparse.Namespace) -> int:
     plots_dir = args.plots or args.out.parent
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
     if args.live:
+        from .live import require_ros
+
+        require_ros()  # no ROS here: stop, naming the package, before the output file is made
         if args.selector is not None and args.selector not in NODE_ESTIMATORS:
             raise ValueError(f"--selector {args.selector}: the node runs {', '.join(NODE_ESTIMATORS)} (its pose_estimator); "
                              "replay without --live for the others")

@@ -38,9 +38,8 @@ def _without_ros(code: str, cwd) -> subprocess.CompletedProcess:
 
 def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
     """nmnet_node (the console script or `python -m nmnet_ros.node`) and `nmnet replay --live` stop with one line
-    naming the package and the two ways to get it (exit code 2, no traceback); the live replay's output file is still a readable MCAP."""
-    from mcap.reader import make_reader
-
+    naming the package and the two ways to get it (exit code 2, no traceback); the live replay stops before it makes
+    its output file."""
     from nmnet_ros.demo import SAMPLE_BAG
 
     node = _without_ros("from nmnet_ros.cli import node_main\nsys.exit(node_main(['nmnet_node']))", tmp_path)
@@ -52,8 +51,7 @@ def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
         assert done.returncode == 2, done.stderr
         assert done.stderr.startswith(f"{prog}: error: the ROS 2 Python package 'rclpy' is missing"), done.stderr
         assert "source /opt/ros/kilted/setup.bash" in done.stderr and "Traceback" not in done.stderr
-    with open(tmp_path / "live.mcap", "rb") as f:
-        assert list(make_reader(f).iter_messages()) == []
+    assert not (tmp_path / "live.mcap").exists()
 
 
 def test_node_help_lists_topics_service_and_every_parameter_without_ros(tmp_path):
