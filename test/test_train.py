@@ -268,7 +268,7 @@ def test_turn_on_a_distorted_camera_is_a_clear_error(tmp_path):
 
 @pytest.mark.parametrize(("key", "on", "off"), [("augment", True, False), ("thin_inliers", 1.0, 0.0),
                                                 ("turn_deg", 25.0, 0.0), ("ess_loss", 1.0, 0.0)])
-def test_training_option_is_seeded_and_changes_the_batches(tmp_path, key, on, off):
+def test_training_option_is_seeded_and_changes_the_training(tmp_path, key, on, off):
     seq = str(data_dir("strecha-fountain-p11"))
     cfg = {"epochs": 1, "steps_per_epoch": 2, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1}
     spec_train, spec_val, cache = [f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path / "cache"
