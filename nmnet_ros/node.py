@@ -33,6 +33,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -149,7 +150,9 @@ class NMNetNode(Node):
         self.pub_debug = self.create_publisher(Image, "~/debug_image", 2)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_service(Trigger, "~/reset", self._on_reset)
-        self.create_timer(1.0, self._tick)
+        # health checks and /diagnostics on the steady clock: under use_sim_time with nothing on /clock (a bag
+        # played without --clock) a timer on the node's clock never fires, and the node would never say why it is idle
+        self.create_timer(1.0, self._tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
         # Two stages on two threads: detection of frame t+1 overlaps matching/NM-Net/pose of frame t
         # (OpenCV and torch release the GIL). Each frame's features are computed once and handed over.
         self._ready: _Detected | None = None

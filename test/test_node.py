@@ -375,9 +375,13 @@ def test_a_camera_the_node_cannot_match_is_explained(ros, tmp_path):
     assert "1 publisher(s) on /image but no frame for 5 s" in out and "do not match; use qos:=auto" in out, out
 
 
-def test_a_node_nobody_publishes_to_names_the_image_topics_there_are(ros, tmp_path):
-    """The usual set-up slip, no remap: after 10 s without a publisher the node lists the image topics and the remap."""
-    node = NodeProcess([], ros, tmp_path / "node.log")
+@pytest.mark.parametrize("node_args", [[], ["--ros-args", "-p", "use_sim_time:=true"]], ids=["wall-time", "sim-time-no-clock"])
+def test_a_node_nobody_publishes_to_names_the_image_topics_there_are(ros, tmp_path, node_args):
+    """The usual set-up slip, no remap: after 10 s without a publisher the node lists the image topics and the remap.
+
+    Also with use_sim_time and nothing on /clock (a bag played without --clock): the checks and /diagnostics run on
+    the steady clock, so the advice still comes."""
+    node = NodeProcess(node_args, ros, tmp_path / "node.log")
     peer = Peer(image_topic="/cam/image_raw", info_topic="/cam/camera_info")
     try:
         assert spin_until(peer.node, lambda: peer.count("warn_no_publisher") > 0, 40.0), "no warning without a publisher"
