@@ -250,10 +250,16 @@ def essential_loss(logits: torch.Tensor, x: torch.Tensor, E_gt: torch.Tensor) ->
     x0, y0, x1, y1 = (x[..., i].double() for i in range(4))
     X = torch.stack([x1 * x0, x1 * y0, x1, y1 * x0, y1 * y0, y1, x0, y0, torch.ones_like(x0)], -1)
     XwX = X.transpose(1, 2) @ (X * w[..., None])
+    # a sample with fewer than 8 positive weights has no eight-point solution: left out (identity in its place, so
+    # the eigen-decomposition's gradient stays finite)
+    posed = (w > 0).sum(1) >= 8
+    if not posed.any():
+        return logits.sum() * 0.0
+    XwX = torch.where(posed[:, None, None], XwX, torch.eye(9, dtype=XwX.dtype, device=XwX.device))
     e = torch.linalg.eigh(XwX)[1][..., 0]  # eigenvector of the smallest eigenvalue, unit norm
     g = E_gt.reshape(-1, 9).double()
     d = torch.minimum(((e - g) ** 2).sum(-1), ((e + g) ** 2).sum(-1))
-    return d.float().mean()
+    return d[posed].float().mean()
 
 
 def balanced_bce(logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:

@@ -256,6 +256,15 @@ def test_essential_loss_measures_the_weighted_eight_point_against_the_samples_tr
         logits = torch.zeros_like(truth).normal_(0.5, 1.0).requires_grad_()
         essential_loss(logits, x, E_gt).backward()
         assert torch.isfinite(logits.grad).all() and logits.grad.abs().sum() > 0
+    # a sample the network rejects almost entirely (< 8 positive weights) has no eight-point: left out, gradients finite
+    logits = torch.stack([torch.full_like(truth[0], -2.0), truth[0]]).requires_grad_()
+    logits.data[0, :5] = 2.0
+    both = torch.cat([x, x]), torch.cat([E_gt, E_gt])
+    loss = essential_loss(logits, *both)
+    assert abs(loss - essential_loss(truth, x, E_gt)) < 1e-6
+    loss.backward()
+    assert torch.isfinite(logits.grad).all()
+    assert essential_loss(torch.full_like(logits, -2.0), *both) == 0
     assert {k[1] for k in kinds} == {False, True} and any(k[0] for k in kinds) and posed >= 4  # swapped or not, turned
 
 
