@@ -104,6 +104,23 @@ class Peer:
         self.node.destroy_node()
 
 
+@contextmanager
+def node_and_peer(ros: dict, tmp_path, node_args: list[str], stop: int = signal.SIGTERM, **peer_args):
+    """``python -m nmnet_ros.node`` with ``node_args`` (log in tmp_path) and a :class:`Peer`; yields (node, peer).
+
+    Both are stopped on leaving (the node by ``stop``), so ``node.output()`` is complete after the block; when the
+    block succeeded, the node must have exited cleanly.
+    """
+    node = NodeProcess(node_args, ros, tmp_path / "node.log")
+    peer = Peer(**peer_args)
+    try:
+        yield node, peer
+    finally:
+        peer.close()
+        code = node.stop(stop)
+    assert code == 0, f"the node exited with {code}:\n{node.output()}"
+
+
 def no_estimate(msg) -> bool:
     """A relative pose that says "no estimate": the identity, variance NO_ESTIMATE_VAR on every axis."""
     from nmnet_ros.posemsg import NO_ESTIMATE_VAR
@@ -181,15 +198,10 @@ COMPRESSED = (["-p", "use_compressed:=true", "-p", "pose_estimator:=classic"], {
 def test_twenty_kitti_frames(ros, tmp_path, node_args, peer_args, make_msg, frames, stop_signal):
     """20 frames + CameraInfo -> 19 matches and 19 poses, rotation error < 2 deg on >= 90 %; clean shutdown."""
     seq = Sequence.load(data_dir("kitti-07"))
-    node = NodeProcess(["--ros-args", *node_args], ros, tmp_path / "node.log")
-    peer = Peer(**peer_args)
-    try:
+    with node_and_peer(ros, tmp_path, ["--ros-args", *node_args], stop_signal, **peer_args) as (node, peer):
         peer.wait_connected()
         send_lockstep(peer, seq, list(frames), make_msg, kitti_info(seq))
         check_kitti_run(peer, seq, list(frames), network="pose_estimator:=classic" not in node_args)
-    finally:
-        peer.close()
-        assert node.stop(stop_signal) == 0, node.output()
     assert "Traceback" not in node.output()
 
 
@@ -199,11 +211,9 @@ def wait_diag(peer: Peer, key: str, at_least: int, timeout: float = 30.0) -> boo
 
 def test_bad_input_is_survived_and_counted(ros, tmp_path):
     seq = Sequence.load(data_dir("kitti-07"))
-    node = NodeProcess([], ros, tmp_path / "node.log")
-    peer = Peer()
     img0, img1, img2 = seq.image(60), seq.image(61), seq.image(62)
     info = kitti_info(seq)
-    try:
+    with node_and_peer(ros, tmp_path, []) as (node, peer):
         peer.wait_connected()
         bad_k = kitti_info(seq)
         bad_k.k = [0.0] * 9
@@ -287,9 +297,6 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
             spin_until(peer.node, lambda: False, 0.3)
         assert wait_diag(peer, "warn_duplicate_stamp", 2)
         assert node.alive()
-    finally:
-        peer.close()
-        assert node.stop(signal.SIGTERM) == 0
     out = node.output()
     assert "Traceback" not in out
     for needle in ("unsupported image encoding", "truncated", "0x0", "focal lengths", "NaN", "duplicate_stamp",
@@ -304,9 +311,7 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
 
 def test_corrupt_jpeg_is_skipped(ros, tmp_path):
     seq = Sequence.load(data_dir("kitti-07"))
-    node = NodeProcess(["--ros-args", "-p", "use_compressed:=true"], ros, tmp_path / "node.log")
-    peer = Peer(compressed=True)
-    try:
+    with node_and_peer(ros, tmp_path, ["--ros-args", "-p", "use_compressed:=true"], signal.SIGINT, compressed=True) as (node, peer):
         peer.wait_connected()
         good = compressed_msg(seq.image(70), 1.0)
         corrupt = compressed_msg(None, 0.5, data=bytes(good.data[:200]) + b"\x00" * 50)
@@ -320,9 +325,6 @@ def test_corrupt_jpeg_is_skipped(ros, tmp_path):
         peer.first_frame(kitti_info(seq), good)
         peer.pub_img.publish(compressed_msg(seq.image(71), 2.0))
         assert peer.wait_result_for(2.0)
-    finally:
-        peer.close()
-        node.stop()
     assert "cannot decode compressed image" in node.output()
 
 
@@ -333,9 +335,7 @@ def test_a_reliable_camera_with_large_raw_frames_is_followed(ros, tmp_path):
     mono16 (0.9 MB) and a Bayer mosaic.
     """
     seq = Sequence.load(data_dir("kitti-07"))
-    node = NodeProcess([], ros, tmp_path / "node.log")
-    peer = Peer(reliable=True)
-    try:
+    with node_and_peer(ros, tmp_path, [], reliable=True) as (node, peer):
         peer.wait_connected()
         assert spin_until(peer.node, lambda: peer.diag_values().get("input_qos") == "reliable", 10.0)
         spin_until(peer.node, lambda: False, 0.5)  # the new subscription's discovery
@@ -347,18 +347,13 @@ def test_a_reliable_camera_with_large_raw_frames_is_followed(ros, tmp_path):
             peer.pub_img.publish(msg)
             assert peer.wait_result_for(stamp), f"no result for the {msg.encoding} frame ({len(msg.data)} bytes)"
         assert peer.count("warn_bad_image") == 0 and peer.count("warn_no_frames") == 0
-    finally:
-        peer.close()
-        assert node.stop(signal.SIGTERM) == 0
     assert "subscribing reliable" in node.output()
 
 
 def test_a_camera_the_node_cannot_match_is_explained(ros, tmp_path):
     """A reliable subscription (qos:=reliable) never matches a best-effort camera: the node says so and why."""
     seq = Sequence.load(data_dir("kitti-07"))
-    node = NodeProcess(["--ros-args", "-p", "qos:=reliable"], ros, tmp_path / "node.log")
-    peer = Peer(reliable=False)
-    try:
+    with node_and_peer(ros, tmp_path, ["--ros-args", "-p", "qos:=reliable"], reliable=False) as (node, peer):
         assert spin_until(peer.node, lambda: bool(peer.diag), 30.0), "the node published no diagnostics"
         img = seq.image(90)
         for n in range(60):  # 5 Hz for up to 12 s; the node speaks up after 5 s without a frame
@@ -368,9 +363,6 @@ def test_a_camera_the_node_cannot_match_is_explained(ros, tmp_path):
                 break
         assert peer.count("warn_no_frames") > 0 and peer.count("frames_received") == 0
         assert node.alive()
-    finally:
-        peer.close()
-        assert node.stop(signal.SIGTERM) == 0
     out = node.output()
     assert "1 publisher(s) on /image but no frame for 5 s" in out and "do not match; use qos:=auto" in out, out
 
@@ -381,14 +373,9 @@ def test_a_node_nobody_publishes_to_names_the_image_topics_there_are(ros, tmp_pa
 
     Also with use_sim_time and nothing on /clock (a bag played without --clock): the checks and /diagnostics run on
     the steady clock, so the advice still comes."""
-    node = NodeProcess(node_args, ros, tmp_path / "node.log")
-    peer = Peer(image_topic="/cam/image_raw", info_topic="/cam/camera_info")
-    try:
+    with node_and_peer(ros, tmp_path, node_args, image_topic="/cam/image_raw", info_topic="/cam/camera_info") as (node, peer):
         assert spin_until(peer.node, lambda: peer.count("warn_no_publisher") > 0, 40.0), "no warning without a publisher"
         assert node.alive()
-    finally:
-        peer.close()
-        assert node.stop(signal.SIGTERM) == 0
     out = node.output()
     assert "no publisher on /image for 10 s: image topics seen: /cam/image_raw [Image]; remap with -r image:=/cam/image_raw" \
         in out, out
@@ -398,12 +385,10 @@ def test_rectified_frames_take_p_and_a_rect_topic_with_distortion_is_pointed_out
     """KITTI's frames are rectified; given a camera_info whose K and D describe a raw, distorted camera and whose
     P is the rectified one, rectified:=true (set at run time) gives the right poses."""
     seq = Sequence.load(data_dir("kitti-07"))
-    node = NodeProcess(["--ros-args", "-r", "image:=/cam/image_rect"], ros, tmp_path / "node.log")
-    peer = Peer(image_topic="/cam/image_rect")
     raw = kitti_info(seq)
     raw.k = [float(x) for x in (np.diag([0.9, 0.9, 1.0]) @ seq.camera.K).ravel()]  # the raw camera: another K, distorted
     raw.d = [-0.3, 0.1, 0.0, 0.0, 0.0]
-    try:
+    with node_and_peer(ros, tmp_path, ["--ros-args", "-r", "image:=/cam/image_rect"], image_topic="/cam/image_rect") as (node, peer):
         peer.wait_connected()
         peer.pub_info.publish(raw)
         assert spin_until(peer.node, lambda: "looks rectified but camera_info has lens distortion" in node.output(), 10.0)
@@ -412,9 +397,6 @@ def test_rectified_frames_take_p_and_a_rect_topic_with_distortion_is_pointed_out
         send_lockstep(peer, seq, frames, image_msg, raw)
         # measured: 0.02-0.04 deg with P; 0.6-0.9 deg with the raw K and D on these rectified frames
         assert np.median(check_kitti_run(peer, seq, frames)) < 0.2
-    finally:
-        peer.close()
-        assert node.stop(signal.SIGTERM) == 0
     assert "set rectified:=true if these frames are rectified" in node.output()
 
 
@@ -455,9 +437,8 @@ def test_parameters_from_yaml_and_command_line(ros, tmp_path):
                          "/**:\n  ros__parameters:\n    max_keypoints: 500\n    score_threshold: 0.7\n    qos: reliable\n"
                          "    pose_threshold_px: 0.8\n    pose_refine_iterations: 0\n"
                          "/nmnet_node:\n  ros__parameters:\n    k: 6\n")  # after /**: wins
-    node = NodeProcess(["--ros-args", "--params-file", str(yaml_file), "-p", "max_keypoints:=300"], ros, tmp_path / "node.log")
-    peer = Peer(reliable=True)
-    try:
+    node_args = ["--ros-args", "--params-file", str(yaml_file), "-p", "max_keypoints:=300"]
+    with node_and_peer(ros, tmp_path, node_args, signal.SIGINT, reliable=True) as (node, peer):
         peer.wait_connected()
         got = get_params(peer, ["max_keypoints", "score_threshold", "qos", "k", "pose_threshold_px", "pose_refine_iterations"])
         assert got == {"max_keypoints": 300, "score_threshold": 0.7, "qos": "reliable", "k": 6, "pose_threshold_px": 0.8,
@@ -467,9 +448,6 @@ def test_parameters_from_yaml_and_command_line(ros, tmp_path):
         assert {name: offline[name] for name in got} == {**got, "max_keypoints": 500}  # 300 came from -p
         peer.first_frame(kitti_info(seq), image_msg(seq.image(0), 1.0))
         assert 0 < int(peer.diag_values()["keypoints"]) <= 300  # the -p value reached the detector
-    finally:
-        peer.close()
-        node.stop()
 
 
 def set_params(peer: Peer, values: dict) -> list:
@@ -508,15 +486,10 @@ def kitti_node(ros: dict, tmp_path, first: int):
     """A node at 1000 keypoints and a peer, the node having processed KITTI-07 frame ``first`` stamped 1.0 s:
     yields (sequence, peer, node); both are stopped on leaving, so ``node.output()`` is complete after it."""
     seq = Sequence.load(data_dir("kitti-07"))
-    node = NodeProcess(["--ros-args", "-p", "max_keypoints:=1000"], ros, tmp_path / "node.log")
-    peer = Peer()
-    try:
+    with node_and_peer(ros, tmp_path, ["--ros-args", "-p", "max_keypoints:=1000"], signal.SIGINT) as (node, peer):
         peer.wait_connected()
         peer.first_frame(kitti_info(seq), image_msg(seq.image(first), 1.0))
         yield seq, peer, node
-    finally:
-        peer.close()
-        node.stop()
 
 
 def test_reset_service_restarts_the_chain(ros, tmp_path):
@@ -621,10 +594,8 @@ def test_flood_keeps_latency_bounded(ros, tmp_path):
     """
     seq = Sequence.load(data_dir("kitti-07"))
     imgs = [seq.image(i) for i in range(80, 100)]
-    node = NodeProcess([], ros, tmp_path / "node.log")
-    peer = Peer()
     sent: dict[float, float] = {}
-    try:
+    with node_and_peer(ros, tmp_path, [], signal.SIGINT) as (node, peer):
         peer.wait_connected()
         peer.first_frame(kitti_info(seq), image_msg(imgs[0], 0.5))
         peer.pub_img.publish(image_msg(imgs[1], 1.0))  # warm: a full pair has run once
@@ -646,9 +617,6 @@ def test_flood_keeps_latency_bounded(ros, tmp_path):
         rss1 = rss_mb(node.proc.pid)
         assert wait_diag(peer, "frames_dropped", 1)
         vals = peer.diag_values()
-    finally:
-        peer.close()
-        node.stop()
     lat = [t - sent[round(s, 6)] for (t, _), s in zip(peer.matches, peer.stamps(peer.matches), strict=True) if round(s, 6) in sent]
     received, dropped = int(vals["frames_received"]), int(vals["frames_dropped"])
     print(f"sent {n}, received {received} (best effort), results {len(lat)}, dropped {dropped}, latency s: {np.round(lat, 2)}, "
