@@ -203,6 +203,15 @@ def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac",
     return E[:3], mask.ravel().astype(bool)  # several stacked solutions: the first is the best
 
 
+def eight_point_rows(x0, y0, x1, y1, xp=np):
+    """Rows of x1^T E x0 = 0 as linear equations in E's nine entries (row-major), one per correspondence.
+
+    Array-module generic (``xp``: numpy, or torch where the loss needs gradients), so the eight-point's
+    design matrix is written once.
+    """
+    return xp.stack([x1 * x0, x1 * y0, x1, y1 * x0, y1 * y0, y1, x0, y0, xp.ones_like(x0)], -1)
+
+
 def weighted_eight_point(x0n: np.ndarray, x1n: np.ndarray, weights: np.ndarray) -> np.ndarray | None:
     """Essential matrix minimising the weighted algebraic epipolar error (as in Yi et al. 2018).
 
@@ -214,9 +223,7 @@ def weighted_eight_point(x0n: np.ndarray, x1n: np.ndarray, weights: np.ndarray) 
         raise ValueError(f"weights length {len(w)} does not match {len(x0n)} correspondences")
     if np.count_nonzero(w > 1e-6) < MIN_MATCHES:
         return None
-    x, y = x0n[:, 0], x0n[:, 1]
-    u, v = x1n[:, 0], x1n[:, 1]
-    X = np.stack([u * x, u * y, u, v * x, v * y, v, x, y, np.ones_like(x)], 1)
+    X = eight_point_rows(x0n[:, 0], x0n[:, 1], x1n[:, 0], x1n[:, 1])
     XwX = X.T @ (X * w[:, None])
     _, vecs = np.linalg.eigh(XwX)
     E = vecs[:, 0].reshape(3, 3)

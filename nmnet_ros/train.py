@@ -29,7 +29,7 @@ import torch
 from .cache import FeatureCache
 from .datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
-from .geometry import apply_homography, essential_from_pose, homography_jacobian
+from .geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
 from .metrics import prf
 from .model import NMNet, WeightsError, load_model, network_input
 from .neighbors import mine_neighbors
@@ -247,8 +247,7 @@ def essential_loss(logits: torch.Tensor, x: torch.Tensor, E_gt: torch.Tensor) ->
     (normalised x, y, x', y'); ``E_gt``: (B, 3, 3) unit-norm, from ``sample_essential``.
     """
     w = torch.relu(torch.tanh(logits)).double()
-    x0, y0, x1, y1 = (x[..., i].double() for i in range(4))
-    X = torch.stack([x1 * x0, x1 * y0, x1, y1 * x0, y1 * y0, y1, x0, y0, torch.ones_like(x0)], -1)
+    X = eight_point_rows(*(x[..., i].double() for i in range(4)), xp=torch)
     XwX = X.transpose(1, 2) @ (X * w[..., None])
     # a sample with fewer than 8 positive weights has no eight-point solution: left out (identity in its place, so
     # the eigen-decomposition's gradient stays finite)

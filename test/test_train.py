@@ -10,7 +10,7 @@ import torch
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
 from nmnet_ros.evaluate import add_arguments as eval_args
-from nmnet_ros.geometry import apply_homography, essential_from_pose, sym_epipolar_sq
+from nmnet_ros.geometry import apply_homography, eight_point_rows, essential_from_pose, sym_epipolar_sq
 from nmnet_ros.model import DEFAULT_CONFIG as MODEL_CONFIG
 from nmnet_ros.model import load_model, weights_dir
 from nmnet_ros.neighbor_study import add_arguments as neighbors_args
@@ -243,9 +243,7 @@ def test_essential_loss_measures_the_weighted_eight_point_against_the_samples_tr
         truth = torch.from_numpy(np.where(labels, 5.0, -5.0)[None]).float()
         # the true inliers' eight-point is the true E (up to sign) where it is well posed: not when the two
         # smallest eigenvalues nearly meet (a turn can leave inliers on a near-critical surface)
-        X = torch.stack([x[0, labels, 2] * x[0, labels, 0], x[0, labels, 2] * x[0, labels, 1], x[0, labels, 2],
-                         x[0, labels, 3] * x[0, labels, 0], x[0, labels, 3] * x[0, labels, 1], x[0, labels, 3],
-                         x[0, labels, 0], x[0, labels, 1], torch.ones(int(labels.sum()))], 1).double()
+        X = eight_point_rows(*(x[0, labels, i].double() for i in range(4)), xp=torch)
         ev = torch.linalg.eigvalsh(X.T @ X)
         if ev[1] > 5 * ev[0]:
             posed += 1
