@@ -7,6 +7,7 @@ node has subscribed; the node's ``~/matches`` and ``~/relative_pose`` are record
 
 from __future__ import annotations
 
+import importlib
 import os
 import random
 import signal
@@ -31,19 +32,22 @@ from .replay import frame_error
 NODE_NAME = "nmnet_node"
 
 
-def require_ros() -> None:
-    """Import what the live mode runs on (rclpy, the message packages); a missing one raises ImportError naming it.
+# the ROS packages the live mode runs on: the player's (this module) and the node's (node.py, its own process);
+# test_core_no_ros checks that both modules import no other
+LIVE_ROS_PACKAGES = ("rclpy", "diagnostic_msgs", "geometry_msgs", "rcl_interfaces", "sensor_msgs", "std_srvs")
 
-    Called before anything is written, so a machine without ROS leaves no empty output behind.
+
+def require_ros() -> None:
+    """Import what the live mode runs on (player and node); a missing package raises ImportError naming it.
+
+    Called before anything is written, so a machine without ROS leaves no empty output behind, and a missing
+    message package is named here rather than by a node that exits before subscribing.
     """
-    import rclpy  # noqa: F401 - the player runs in this process, the node in its own
-    from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: F401
-    from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: F401
+    for package in LIVE_ROS_PACKAGES:
+        importlib.import_module(package)
 
 
 def _rclpy_type(msgtype: str):
-    import importlib
-
     pkg, _, name = msgtype.split("/")
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 

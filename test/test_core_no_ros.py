@@ -6,6 +6,8 @@ import sys
 
 import pytest
 
+from .conftest import ROOT
+
 CORE = ["features", "matching", "neighbors", "geometry", "datasets", "model", "pairs", "metrics", "cache", "train",
         "neighbor_study"]
 OFFLINE_TOOLS = ["evaluate", "replay", "make_bag", "bench", "cli", "params"]  # nmnet replay (offline), eval, make-bag, bench
@@ -31,8 +33,9 @@ def test_cli_lists_subcommands():
 
 
 # what a Python without rclpy and the message packages sees (arm64 with no ROS 2 sourced): their imports fail
-def _without_ros(code: str, cwd) -> subprocess.CompletedProcess:
-    block = "import sys\nfrom nmnet_ros.cli import ROS_PACKAGES\nfor m in ROS_PACKAGES: sys.modules[m] = None\n"
+def _without_ros(code: str, cwd, blocked: str = "ROS_PACKAGES") -> subprocess.CompletedProcess:
+    """Run ``code`` in a Python where the ``blocked`` packages (an expression; default: all of ROS) fail to import."""
+    block = f"import sys\nfrom nmnet_ros.cli import ROS_PACKAGES\nfor m in {blocked}: sys.modules[m] = None\n"
     return subprocess.run([sys.executable, "-c", block + code], capture_output=True, text=True, cwd=cwd, timeout=300)
 
 
@@ -52,6 +55,37 @@ def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
         assert done.stderr.startswith(f"{prog}: error: the ROS 2 Python package 'rclpy' is missing"), done.stderr
         assert "source /opt/ros/kilted/setup.bash" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "live.mcap").exists()
+
+
+def test_live_replay_names_a_missing_message_package_the_node_needs(tmp_path):
+    """A ROS install with rclpy but without std_srvs (the node's ~/reset): `nmnet replay --live` names the package
+    before it starts the node or makes its output file (the node would exit before subscribing)."""
+    from nmnet_ros.demo import SAMPLE_BAG
+
+    live = _without_ros(f"from nmnet_ros.cli import main\nsys.exit(main(['replay', {str(SAMPLE_BAG)!r}, '--live', "
+                        "'--out', 'live.mcap']))", tmp_path, blocked="['std_srvs']")
+    assert live.returncode == 2, live.stderr
+    assert live.stderr.startswith("nmnet replay: error: the ROS 2 Python package 'std_srvs' is missing"), live.stderr
+    assert not (tmp_path / "live.mcap").exists()
+
+
+def test_live_mode_checks_every_ros_package_the_player_and_node_import():
+    """require_ros's list covers the ROS packages live.py and node.py import (it would miss a new one otherwise)."""
+    import ast
+
+    from nmnet_ros.cli import ROS_PACKAGES
+    from nmnet_ros.live import LIVE_ROS_PACKAGES
+
+    imported = set()
+    for module in ("live", "node"):
+        tree = ast.parse((ROOT / "nmnet_ros" / f"{module}.py").read_text())
+        for n in ast.walk(tree):
+            if isinstance(n, ast.Import):
+                imported |= {a.name.split(".")[0] for a in n.names}
+            elif isinstance(n, ast.ImportFrom) and n.level == 0 and n.module:
+                imported.add(n.module.split(".")[0])
+    assert {"rclpy", "std_srvs", "sensor_msgs"} <= imported  # the walk sees the imports
+    assert imported & ROS_PACKAGES <= set(LIVE_ROS_PACKAGES), imported & ROS_PACKAGES
 
 
 def test_node_help_lists_topics_service_and_every_parameter_without_ros(tmp_path):
