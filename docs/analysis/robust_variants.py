@@ -53,12 +53,13 @@ def second_pass(c: Correspondences, s: np.ndarray, t: float, rescore: Callable[[
     return idx[rescore(subset(c, idx)) > t] if len(idx) >= 16 else idx
 
 
+U, P = False, True  # uniform / PROSAC sampling
+
+
 def cut_at(u: float) -> Callable:
     """The variant that hands MAGSAC++ the matches scored above ``u`` instead of the calibrated cut."""
-    return lambda c, s, t, _: (np.flatnonzero(s > u),) * 2 + (False,)
+    return lambda c, s, t, _: (np.flatnonzero(s > u),) * 2 + (U,)
 
-
-U, P = False, True  # uniform / PROSAC sampling
 # name -> (c, scores, calibrated cut, the network's scores of other correspondences)
 #      -> (indices MAGSAC++ samples from, indices the polish runs over, PROSAC?)
 Variant = Callable[[Correspondences, np.ndarray, float, Callable], tuple[np.ndarray, np.ndarray, bool]]
@@ -67,8 +68,7 @@ VARIANTS: dict[str, Variant] = {
     "nmnet+magsac": lambda c, s, t, _: (np.flatnonzero(s > t),) * 2 + (U,),
     "PROSAC by score": lambda c, s, t, _: (by_score(s, s > t),) * 2 + (P,),
     "PROSAC, cut 0.5": lambda c, s, t, _: (by_score(s, s > 0.5),) * 2 + (P,),
-    "cut 0.8": lambda c, s, t, _: (np.flatnonzero(s > 0.8),) * 2 + (U,),
-    "cut 0.9": lambda c, s, t, _: (np.flatnonzero(s > 0.9),) * 2 + (U,),
+    **{f"cut {u}": cut_at(u) for u in (0.8, 0.9)},
     "fit >0.9, polish >cut": lambda c, s, t, _: (np.flatnonzero(s > 0.9), np.flatnonzero(s > t), U),
     "fit top 150, polish all": lambda c, s, t, _: (by_score(s, s > t)[:150], np.flatnonzero(s > t), U),
     "fit top 300, polish all": lambda c, s, t, _: (by_score(s, s > t)[:300], np.flatnonzero(s > t), U),
