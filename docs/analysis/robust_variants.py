@@ -1,7 +1,7 @@
 """Other ways to feed NM-Net's scores to MAGSAC++, on the whole validation split or the training pairs (shipped weights).
 
 An analysis behind the README's accuracy section, not part of the package. Each variant picks the
-matches MAGSAC++ samples from (and, for some, a larger set the pose polish runs over); AUC@5 per
+matches MAGSAC++ samples from (and, for some, another set the pose polish runs over); AUC@5 per
 sequence, mean over seeds, and the paired difference to ``ratio+magsac``:
 
     python docs/analysis/robust_variants.py ../shared/data [--detector hessian-affine] [--seeds 3] [--pairs train]
@@ -77,6 +77,10 @@ VARIANTS: dict[str, Variant] = {
     "union with mutual+ratio": lambda c, s, t, _: (np.flatnonzero((s > t) | classic_mask(c)),) * 2 + (U,),
     **{f"cut {u}": cut_at(u) for u in (0.2, 0.3, 0.4, 0.5)},
     "second pass on the selection": lambda c, s, t, rescore: (second_pass(c, s, t, rescore),) * 2 + (U,),
+    "fit >cut, polish both kept": lambda c, s, t, _: (np.flatnonzero(s > t), np.flatnonzero((s > t) & classic_mask(c)), U),
+    "fit >cut, polish mutual+ratio": lambda c, s, t, _: (np.flatnonzero(s > t), np.flatnonzero(classic_mask(c)), U),
+    "fit both kept, polish >cut": lambda c, s, t, _: (np.flatnonzero((s > t) & classic_mask(c)), np.flatnonzero(s > t), U),
+    "fit mutual+ratio, polish >cut": lambda c, s, t, _: (np.flatnonzero(classic_mask(c)), np.flatnonzero(s > t), U),
 }
 SPLITS = {"val": (("kitti-07:120-159", None), ("strecha-herz-jesus-p25", None)),
           "train": (("strecha-fountain-p11", 50), ("strecha-entry-p10", 50), ("kitti-07:0-119", 50))}
