@@ -128,7 +128,13 @@ class Prepared:
     matches: Matches | None = None
     against: Features | None = None  # the features ``matches`` were made against
     match_key: tuple = ()  # the matching settings they were made with
+    detector: Detector | None = None  # the detector that made ``feats``: frames of two detectors are never related
 
+
+
+def related(a: Prepared, b: Prepared) -> bool:
+    """Whether two prepared frames can be matched: made by the same detector, at the same sizes."""
+    return a.detector is b.detector and (a.size, a.full) == (b.size, b.full)
 
 class Frontend:
     """Hessian-affine + NN matching + NM-Net (or another selector) + relative pose, frame to frame."""
@@ -141,7 +147,7 @@ class Frontend:
         self.detector = _detector(c)
         self.select = _selector(c)
         warm_up_matching()  # like the detector's and NM-Net's kernels: compiled before the first frame
-        self.prev: tuple[float, Features, tuple[int, int], tuple[int, int]] | None = None  # stamp, features, sizes
+        self.prev: tuple[float, Prepared] | None = None  # the previous frame: stamp, the first stage's output
         self._last_prepared: Prepared | None = None  # the first stage's own previous frame
         self._cost_ms: dict[str, float] = {}  # running means of the stages' parts, for match_stage: auto
 
@@ -150,7 +156,8 @@ class Frontend:
 
         The new detector and selector are built before anything is swapped, so a change that fails
         (an unreadable weights file, an unknown name) raises and leaves the front end as it was. A new
-        detector restarts the chain: the next frame is a first frame.
+        detector restarts the chain: the next frame is a first frame. In the node this runs beside the two
+        stages, so each frame carries its detector: one detected before the swap is never related to one after.
         """
         unknown = sorted(set(changes) - set(DEFAULT_CONFIG))
         if unknown:
@@ -161,7 +168,7 @@ class Frontend:
         select = _selector(c) if any(c[key] != self.config[key] for key in SELECTOR_KEYS) else self.select
         self.config, self.select = c, select
         if detector is not self.detector:
-            self.detector, self.prev, self._last_prepared = detector, None, None
+            self.detector = detector  # the previous frame's features are of the old one: the next frame is a first frame
             self._cost_ms.clear()  # other features, other costs
 
     def reset(self) -> None:
@@ -199,11 +206,12 @@ class Frontend:
         t = time.perf_counter()
         full = (image.shape[1], image.shape[0])
         image = downscaled(image, self.config["resize_width"])
-        p = Prepared(self.detect(image), (image.shape[1], image.shape[0]), {}, full)
+        detector = self.detector  # read once: reconfigure may swap it meanwhile
+        p = Prepared(detector(image), (image.shape[1], image.shape[0]), {}, full, detector=detector)
         p.timings_ms["detect"] = 1000 * (time.perf_counter() - t)  # with the downscaling, if any
         self._note_cost("detect", p.timings_ms["detect"])
         last, self._last_prepared = self._last_prepared, p
-        if last is not None and (last.size, last.full) == (p.size, p.full) and self._match_in_first_stage():
+        if last is not None and related(last, p) and self._match_in_first_stage():
             p.match_key, p.against = self._match_key(), last.feats
             p.matches = self._match(last.feats, p.feats, p.timings_ms)
         return p
@@ -219,23 +227,24 @@ class Frontend:
             raise RuntimeError("Frontend has no camera: set .camera (from CameraInfo or parameters) first")
         feats, size = p.feats, p.size
         timings = {**(timings or {}), **p.timings_ms}
-        prev, self.prev = self.prev, (stamp, feats, size, p.full)
-        if prev is None:
+        prev, self.prev = self.prev, (stamp, p)
+        if prev is None or prev[1].detector is not p.detector:  # the first frame, or the first of a new detector
             return FrameResult(stamp, "first_frame", timings_ms=timings, num_keypoints=len(feats))
-        if prev[2:] != (size, p.full):
+        if not related(prev[1], p):
             return FrameResult(stamp, "size_changed", timings_ms=timings, num_keypoints=len(feats))
         if stamp < prev[0] - self.config["time_jump_s"]:
             return FrameResult(stamp, "time_jump", timings_ms=timings, num_keypoints=len(feats))
         c = self.config
-        fits = p.against is prev[1] and p.match_key == self._match_key()
-        m = p.matches if fits else self._match(prev[1], feats, timings)
-        k0, k1 = prev[1].keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
+        before = prev[1].feats
+        fits = p.against is before and p.match_key == self._match_key()
+        m = p.matches if fits else self._match(before, feats, timings)
+        k0, k1 = before.keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
         cam = self.camera if size == p.full else self.camera.resized(*size, p.full)
         base = dict(k0=to_frame_pixels(k0, size, p.full), k1=to_frame_pixels(k1, size, p.full), timings_ms=timings,
                     num_keypoints=len(feats), scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool))
         if len(m) < c["min_matches"]:
             return FrameResult(stamp, "too_few_matches", **base)
-        corr = Correspondences(k0, k1, prev[1].frames[m.idx[:, 0]], feats.frames[m.idx[:, 1]],
+        corr = Correspondences(k0, k1, before.frames[m.idx[:, 0]], feats.frames[m.idx[:, 1]],
                                cam.normalize(k0), cam.normalize(k1), m.ratio, m.mutual, cam.focal, size, size)
         t = time.perf_counter()
         sel = self.select(corr)
