@@ -129,6 +129,7 @@ class Prepared:
     against: Features | None = None  # the features ``matches`` were made against
     match_key: tuple = ()  # the matching settings they were made with
     detector: Detector | None = None  # the detector that made ``feats``: frames of two detectors are never related
+    camera: Camera | None = None  # the front end's camera when the frame was prepared (fitted to its size in the node)
 
 
 
@@ -207,7 +208,7 @@ class Frontend:
         full = (image.shape[1], image.shape[0])
         image = downscaled(image, self.config["resize_width"])
         detector = self.detector  # read once: reconfigure may swap it meanwhile
-        p = Prepared(detector(image), (image.shape[1], image.shape[0]), {}, full, detector=detector)
+        p = Prepared(detector(image), (image.shape[1], image.shape[0]), {}, full, detector=detector, camera=self.camera)
         p.timings_ms["detect"] = 1000 * (time.perf_counter() - t)  # with the downscaling, if any
         self._note_cost("detect", p.timings_ms["detect"])
         last, self._last_prepared = self._last_prepared, p
@@ -222,8 +223,10 @@ class Frontend:
 
     def process_prepared(self, p: Prepared, stamp: float, timings: dict[str, float] | None = None) -> FrameResult:
         """Second stage: relate a prepared frame to the previous one (its matches reused when they were
-        made against that very frame with the current settings)."""
-        if self.camera is None:
+        made against that very frame with the current settings). The frame's own camera is the one set when it
+        was prepared: in the node the first stage sets the next frame's while this one is being related."""
+        camera = p.camera if p.camera is not None else self.camera
+        if camera is None:
             raise RuntimeError("Frontend has no camera: set .camera (from CameraInfo or parameters) first")
         feats, size = p.feats, p.size
         timings = {**(timings or {}), **p.timings_ms}
@@ -239,7 +242,7 @@ class Frontend:
         fits = p.against is before and p.match_key == self._match_key()
         m = p.matches if fits else self._match(before, feats, timings)
         k0, k1 = before.keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
-        cam = self.camera if size == p.full else self.camera.resized(*size, p.full)
+        cam = camera if size == p.full else camera.resized(*size, p.full)
         base = dict(k0=to_frame_pixels(k0, size, p.full), k1=to_frame_pixels(k1, size, p.full), timings_ms=timings,
                     num_keypoints=len(feats), scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool))
         if len(m) < c["min_matches"]:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nmnet_ros.datasets import Sequence
-from nmnet_ros.geometry import pose_error_deg, refine_pose, rotation_error_deg
+from nmnet_ros.geometry import Camera, pose_error_deg, refine_pose, rotation_error_deg
 from nmnet_ros.metrics import prf
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
@@ -216,6 +216,23 @@ def test_a_detector_swap_between_the_two_stages_starts_a_new_chain():
     assert first.status == "first_frame" and first.num_keypoints <= 500
     r = fe.process_prepared(fe.prepare(img[3]), 0.3)
     assert r.status == "ok" and r.num_keypoints <= 500 and r.num_selected > 50
+
+
+def test_a_frame_is_related_with_the_camera_it_was_prepared_with():
+    """In the node, stage 1 sets the next frame's camera (fitted to its size) while stage 2 relates the frame
+    before it: that frame keeps the camera it was prepared with."""
+    from nmnet_ros.pipeline import Frontend
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    R_gt, t_gt = seq.relative_pose(40, 41)
+    fe = Frontend(seq.camera, {"selector": "ratio+magsac"})
+    fe.process(seq.image(40), 0.0)
+    p = fe.prepare(seq.image(41))
+    K = seq.camera.K.copy()
+    K[:2] *= 0.5  # the next frame's camera, at half the size
+    fe.camera = Camera(K, seq.camera.dist, seq.camera.width // 2, seq.camera.height // 2)
+    r = fe.process_prepared(p, 0.1)
+    assert r.status == "ok" and max(pose_error_deg(r.pose, R_gt, t_gt)) < 1.0
 
 def test_a_frame_from_before_the_previous_one_starts_a_new_chain():
     """A bag played in a loop (or a clock reset): its first frame again is not related to the loop's last one."""
