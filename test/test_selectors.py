@@ -335,18 +335,14 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     run = subprocess.run(same, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert f"| AUC@5 per sequence (pairs) | {seq}:120-122 (2) | {tmp_path}/other/kitti-07:120-122 (2) |" in run.stdout
-    bad = subprocess.run(cmd + ["--reference", "sift"], capture_output=True, text=True)
-    assert bad.returncode != 0 and "argument --reference: invalid choice: 'sift'" in bad.stderr
-    bad = subprocess.run(cmd + ["--score-threshold", "1.5"], capture_output=True, text=True)
-    assert bad.returncode != 0 and "--score-threshold must be in [0, 1)" in bad.stderr
-    bad = subprocess.run(cmd + ["--threshold-px", "0"], capture_output=True, text=True)
-    assert bad.returncode != 0 and "--threshold-px must be > 0" in bad.stderr
-    bad = subprocess.run(cmd + ["--refine-iterations", "-1"], capture_output=True, text=True)
-    assert bad.returncode != 0 and "--refine-iterations must be >= 0" in bad.stderr
-    bad = subprocess.run(cmd + ["--seeds", "0"], capture_output=True, text=True)
-    assert bad.returncode != 0 and "--seeds must be >= 1" in bad.stderr
-    bad = subprocess.run(cmd + ["--max-iters", "0"], capture_output=True, text=True)
-    assert bad.returncode != 0 and "--max-iters must be >= 1" in bad.stderr
+    for option, value, error in (("--reference", "sift", "argument --reference: invalid choice: 'sift'"),
+                                 ("--score-threshold", "1.5", "--score-threshold must be in [0, 1)"),
+                                 ("--threshold-px", "0", "--threshold-px must be > 0"),
+                                 ("--refine-iterations", "-1", "--refine-iterations must be >= 0"),
+                                 ("--seeds", "0", "--seeds must be >= 1"),
+                                 ("--max-iters", "0", "--max-iters must be >= 1")):
+        bad = subprocess.run(cmd + [option, value], capture_output=True, text=True)
+        assert bad.returncode != 0 and error in bad.stderr, (option, bad.stderr)
 
 
 def test_pose_refinement_keeps_the_selection_and_lowers_the_robust_cost(pairs):
