@@ -48,7 +48,7 @@ from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
 from .model_fast import precision_note
 from .params import PARAMS, STARTUP_ONLY, check_choices, frontend_config, pose_sigmas
-from .pipeline import FrameResult, Frontend, Prepared
+from .pipeline import FrameResult, Frontend, Prepared, stamp_order
 from .posemsg import relative_pose_of_current
 
 
@@ -324,12 +324,11 @@ class NMNetNode(Node):
             self._warn("no_camera_info", "no camera_info yet and no fx/fy/cx/cy parameters: frame skipped")
             return None
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        jump = self.frontend.config["time_jump_s"]
-        if self._last_stamp is not None and stamp < self._last_stamp - jump:
+        kind = stamp_order(self._last_stamp, stamp, self.frontend.config["time_jump_s"])
+        if kind == "time_jump":
             self._warn("time_jump", f"frame stamp {stamp:.6f} is {self._last_stamp - stamp:.1f} s before the previous one "
                                     "(a bag played in a loop, or the clock was reset): restarting from this frame")
-        elif self._last_stamp is not None and stamp <= self._last_stamp:
-            kind = "duplicate_stamp" if stamp == self._last_stamp else "out_of_order_stamp"
+        elif kind is not None:
             unstamped = " (a stamp of 0: does the camera driver stamp its frames?)" if stamp == 0 else ""
             self._warn(kind, f"frame stamp {stamp:.6f} is not after the previous {self._last_stamp:.6f} ({kind}): "
                              f"skipped{unstamped}")

@@ -98,6 +98,18 @@ def match_first(detect_ms: float, match_ms: float, rest_ms: float) -> bool:
     return max(detect_ms + match_ms, rest_ms) < max(detect_ms, match_ms + rest_ms)
 
 
+
+def stamp_order(last: float | None, stamp: float, time_jump_s: float) -> str | None:
+    """How a frame's stamp follows the last frame taken: ``None`` (later, or the first), ``"time_jump"``
+    (more than ``time_jump_s`` earlier: a bag loop or a clock reset; a new chain starts from it), else
+    ``"duplicate_stamp"`` / ``"out_of_order_stamp"``: the frame is skipped, as relating it would give a
+    pose for no time step or one backwards in time. The node and the replay apply the same rule."""
+    if last is None or stamp > last:
+        return None
+    if stamp < last - time_jump_s:
+        return "time_jump"
+    return "duplicate_stamp" if stamp == last else "out_of_order_stamp"
+
 @dataclass
 class FrameResult:
     """What the front end has to say about one frame (relative to the previous one)."""

@@ -28,7 +28,7 @@ from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_p
 from .mcap_out import McapOutput
 from .model import load_model
 from .params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
-from .pipeline import RESTARTS, FrameResult, Frontend
+from .pipeline import RESTARTS, FrameResult, Frontend, stamp_order
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
 STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
@@ -102,7 +102,7 @@ def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_file: Path |
     frames, chosen = read_frames(reader, **(topics or {}), rectified=rectified)
     gt_tum = read_tum(gt_file) if gt_file else None
     run = Run(fe.config["selector"])
-    n_frames, prev_gt, overlay, last_note = 0, None, None, None
+    n_frames, prev_gt, overlay, last_note, last_stamp = 0, None, None, None, None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -122,6 +122,16 @@ def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_file: Path |
                 log(f"frame at {f.stamp:.3f}: skipped, " + (f"camera_info refused: {f.camera_error}" if f.camera_error
                                                             else "no camera_info yet (give the calibration with --camera)"))
                 continue
+            order = stamp_order(last_stamp, f.stamp, fe.config["time_jump_s"])
+            if order == "time_jump":
+                log(f"frame at {f.stamp:.6f}: {last_stamp - f.stamp:.1f} s before the previous frame (a bag recorded in a "
+                    "loop, or a clock reset): a new chain starts here")
+            elif order is not None:
+                unstamped = " (a stamp of 0: did the camera driver stamp its frames?)" if f.stamp == 0 else ""
+                log(f"frame at {f.stamp:.6f}: skipped, its stamp is not after the previous frame's {last_stamp:.6f} "
+                    f"({order}, as the node skips it){unstamped}")
+                continue
+            last_stamp = f.stamp
             cam, note = fit_camera(calibration, (f.image.shape[1], f.image.shape[0]))
             if note and note != last_note:
                 log(f"frame at {f.stamp:.3f}: {note}")

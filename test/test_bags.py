@@ -286,6 +286,31 @@ def test_a_refused_camera_info_is_named_for_every_frame_it_stops(raw_bag, tmp_pa
     assert "no camera_info yet" not in out
 
 
+
+def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag, tmp_path):
+    """A frame stamped as the one before (a driver republishing) or before it (within time_jump_s) is skipped
+    and named, as the node skips it; the next frame in order is related to the last one taken."""
+    stamps = []
+
+    def restamp(topic, msg):
+        if msg.__class__.__name__.endswith("Image"):
+            stamps.append(msg.header.stamp)
+            if len(stamps) == 4:
+                msg.header.stamp = stamps[2]  # the third frame's stamp again
+            elif len(stamps) == 5:
+                msg.header.stamp = stamps[1]  # 0.1 s before the last frame taken
+        return msg
+
+    bag = tmp_path / "restamped"
+    rewrite_bag(raw_bag, bag, restamp)
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    out = r.stdout + r.stderr
+    assert out.count("(duplicate_stamp, as the node skips it)") == 1 and out.count("(out_of_order_stamp, as the node skips it)") == 1, out
+    s = json.loads((tmp_path / "s.json").read_text())
+    assert s["frames"] == 6 and s["processed"] == 4 and s["median_trans_deg"] < 2.0, s
+    assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3  # one per processed frame after the first
+
 def test_frames_resized_from_their_calibration_get_k_scaled(raw_bag, tmp_path):
     """A half-size stream with the full-size camera_info: K is scaled (and said so), and the poses stay right."""
     import cv2

@@ -247,6 +247,15 @@ def test_a_frame_from_before_the_previous_one_starts_a_new_chain():
     assert r.status == "ok" and r.num_selected > 100  # the new chain relates its frames again
 
 
+
+def test_stamp_order_is_the_rule_the_node_and_the_replay_share():
+    from nmnet_ros.pipeline import stamp_order
+
+    assert [stamp_order(None, 5.0, 1.0), stamp_order(5.0, 5.1, 1.0)] == [None, None]
+    assert stamp_order(5.0, 5.0, 1.0) == "duplicate_stamp"
+    assert [stamp_order(5.0, 4.5, 1.0), stamp_order(5.0, 4.0, 1.0)] == ["out_of_order_stamp"] * 2  # 1 s back: not yet a jump
+    assert stamp_order(5.0, 3.9, 1.0) == "time_jump" and stamp_order(5.0, 0.0, 10.0) == "out_of_order_stamp"
+
 def test_a_bad_weights_file_is_refused_by_every_method(tmp_path):
     """build() checks every weights file it is given, also one the method does not use: the caller
     learns now, not when it later switches to a method that loads it."""
