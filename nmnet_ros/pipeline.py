@@ -98,7 +98,6 @@ def match_first(detect_ms: float, match_ms: float, rest_ms: float) -> bool:
     return max(detect_ms + match_ms, rest_ms) < max(detect_ms, match_ms + rest_ms)
 
 
-
 def stamp_order(last: float | None, stamp: float, time_jump_s: float) -> str | None:
     """How a frame's stamp follows the last frame taken: ``None`` (later, or the first), ``"time_jump"``
     (more than ``time_jump_s`` earlier: a bag loop or a clock reset; a new chain starts from it), else
@@ -109,6 +108,7 @@ def stamp_order(last: float | None, stamp: float, time_jump_s: float) -> str | N
     if stamp < last - time_jump_s:
         return "time_jump"
     return "duplicate_stamp" if stamp == last else "out_of_order_stamp"
+
 
 @dataclass
 class FrameResult:
@@ -144,10 +144,10 @@ class Prepared:
     camera: Camera | None = None  # the front end's camera when the frame was prepared (fitted to its size in the node)
 
 
-
 def related(a: Prepared, b: Prepared) -> bool:
     """Whether two prepared frames can be matched: made by the same detector, at the same sizes."""
     return a.detector is b.detector and (a.size, a.full) == (b.size, b.full)
+
 
 class Frontend:
     """Hessian-affine + NN matching + NM-Net (or another selector) + relative pose, frame to frame."""
@@ -247,7 +247,7 @@ class Frontend:
             return FrameResult(stamp, "first_frame", timings_ms=timings, num_keypoints=len(feats))
         if not related(prev[1], p):
             return FrameResult(stamp, "size_changed", timings_ms=timings, num_keypoints=len(feats))
-        if stamp < prev[0] - self.config["time_jump_s"]:
+        if stamp_order(prev[0], stamp, self.config["time_jump_s"]) == "time_jump":
             return FrameResult(stamp, "time_jump", timings_ms=timings, num_keypoints=len(feats))
         c = self.config
         before = prev[1].feats
