@@ -5,8 +5,10 @@ Also pair sampling by frame gap and ground-truth labels of correspondences.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -14,6 +16,7 @@ import yaml
 
 from .geometry import Camera, CameraError, essential_from_pose, relative_pose, sym_epipolar_sq
 
+T = TypeVar("T")
 LABEL_THRESHOLD = 1e-4  # squared symmetric epipolar distance, normalised coordinates (paper)
 
 
@@ -37,8 +40,32 @@ def read_camera_yaml(path: Path) -> Camera:
         raise DatasetError(f"{path}: {e}") from e
 
 
-def _read_table(path: Path) -> list[list[str]]:
-    return [ln.split() for ln in Path(path).read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+def _read_table(path: Path, columns: str, convert: Callable[[list[str]], T]) -> list[T]:
+    """The rows of a whitespace-separated text file (blank and '#' lines skipped), each converted.
+
+    ``convert`` raises ValueError (or IndexError) on a malformed row; the DatasetError then names the
+    file, the line and the ``columns`` it should have.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing; expected lines '{columns}'")
+    rows = []
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            try:
+                rows.append(convert(line.split()))
+            except (ValueError, IndexError) as e:
+                raise DatasetError(f"{path}:{n}: expected '{columns}', got {line.strip()!r}") from e
+    return rows
+
+
+def _floats(n: int) -> Callable[[list[str]], list[float]]:
+    """A row converter: exactly ``n`` numbers."""
+    def convert(fields: list[str]) -> list[float]:
+        if len(fields) != n:
+            raise ValueError(f"{len(fields)} fields")
+        return [float(f) for f in fields]
+    return convert
 
 
 def quat_to_rot(q: np.ndarray) -> np.ndarray:
@@ -51,9 +78,9 @@ def quat_to_rot(q: np.ndarray) -> np.ndarray:
 
 def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """TUM trajectory file -> (timestamps (N,), T_WC (N,4,4))."""
-    rows = _read_table(path)
-    if not rows or any(len(r) != 8 for r in rows):
-        raise DatasetError(f"{path}: expected lines 'timestamp tx ty tz qx qy qz qw'")
+    rows = _read_table(path, "timestamp tx ty tz qx qy qz qw", _floats(8))
+    if not rows:
+        raise DatasetError(f"{path}: no poses; expected lines 'timestamp tx ty tz qx qy qz qw'")
     a = np.array(rows, np.float64)
     T = np.tile(np.eye(4), (len(a), 1, 1))
     for n, r in enumerate(a):
@@ -61,6 +88,12 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
         T[n, :3, 3] = r[1:4]
     return a[:, 0], T
 
+
+
+def pose_at(trajectory: tuple[np.ndarray, np.ndarray], stamp: float) -> np.ndarray:
+    """The pose of a :func:`read_tum` trajectory nearest in time to ``stamp`` (4x4 T_WC)."""
+    stamps, poses = trajectory
+    return poses[int(np.argmin(np.abs(stamps - stamp)))]
 
 @dataclass
 class Sequence:
@@ -80,13 +113,11 @@ class Sequence:
         if not root.is_dir():
             raise DatasetError(f"{root}: not a directory")
         camera = read_camera_yaml(root / "camera.yaml")
-        if not (root / "images.txt").is_file():
-            raise DatasetError(f"{root / 'images.txt'}: missing; list frames as 'timestamp path' lines")
-        rows = _read_table(root / "images.txt")
+        rows = _read_table(root / "images.txt", "timestamp path", lambda r: (float(r[0]), root / r[1]))
         if not rows:
             raise DatasetError(f"{root / 'images.txt'}: no frames listed")
-        stamps = np.array([float(r[0]) for r in rows])
-        paths = [root / r[1] for r in rows]
+        stamps = np.array([stamp for stamp, _ in rows])
+        paths = [path for _, path in rows]
         poses = None
         if (root / "groundtruth.txt").is_file():
             gt_stamps, poses = read_tum(root / "groundtruth.txt")
@@ -95,7 +126,7 @@ class Sequence:
                 poses = poses[idx]
         pairs = None
         if (root / "pairs.txt").is_file():
-            pairs = [(int(a), int(b)) for a, b, *_ in _read_table(root / "pairs.txt")]
+            pairs = _read_table(root / "pairs.txt", "i j", lambda r: (int(r[0]), int(r[1])))
             bad = [p for p in pairs if not (0 <= p[0] < len(paths) and 0 <= p[1] < len(paths))]
             if bad:
                 raise DatasetError(f"{root / 'pairs.txt'}: pair indices out of range: {bad[:3]}")

@@ -22,6 +22,7 @@ import numpy as np
 
 from .bags import BagError, BagReader, pick_topic, pose_from_msg, typestore
 from .caminfo import info_fields
+from .datasets import pose_at
 from .dds import LARGE_FRAMES_PROFILE
 from .geometry import Camera, pose_auc
 from .imgconv import IMAGE_TYPES
@@ -184,24 +185,30 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
     return stats
 
 
-def score_recording(path: Path, bag: Path) -> dict:
-    """Pose errors of a recorded ``~/relative_pose`` stream against the bag's ground truth, scored as the
-    offline replay scores its results (:func:`~nmnet_ros.replay.frame_error`; "no estimate" is a failure).
+def score_recording(path: Path, bag: Path, gt_tum: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+    """Pose errors of a recorded ``~/relative_pose`` stream against the bag's ground truth (or ``gt_tum``, a
+    :func:`~nmnet_ros.datasets.read_tum` trajectory), scored as the offline replay scores its results
+    (:func:`~nmnet_ros.replay.frame_error`; "no estimate" is a failure).
 
     Each message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the
     first, relative to the node's first frame, which has no message, is not scored.
     """
     rec = BagReader(path)
     poses = [(m.log_time_ns, m.msg) for m in rec.messages({f"/{NODE_NAME}/relative_pose"})]
-    src = BagReader(bag)
-    gt_t = pick_topic(src.topics, ("geometry_msgs/msg/PoseStamped",), "gt", None)
-    gt = {m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec: pose_from_msg(m.msg) for m in src.messages({gt_t})} \
-        if gt_t else {}
+    if gt_tum is not None:
+        def truth(t_ns: int) -> np.ndarray | None:
+            return pose_at(gt_tum, t_ns / 1e9)
+    else:
+        src = BagReader(bag)
+        gt_t = pick_topic(src.topics, ("geometry_msgs/msg/PoseStamped",), "gt", None)
+        gt = {m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec: pose_from_msg(m.msg)
+              for m in src.messages({gt_t})} if gt_t else {}
+        truth = gt.get
     errs = []
     for (t_prev, _), (t_cur, msg) in zip(poses, poses[1:], strict=False):
         o, p = msg.pose.pose.orientation, msg.pose.pose.position
         status, pose = estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance)
-        if (err := frame_error(status, pose, gt.get(t_prev), gt.get(t_cur))) is not None:
+        if (err := frame_error(status, pose, truth(t_prev), truth(t_cur))) is not None:
             errs.append(err)
     e = np.array(errs) if errs else np.zeros((0, 2))
     aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3

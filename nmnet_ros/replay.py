@@ -21,7 +21,7 @@ import numpy as np
 from .bags import BagError, BagReader, read_frames
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
-from .datasets import read_camera_yaml, read_tum
+from .datasets import pose_at, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
 from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose
@@ -90,17 +90,17 @@ class Run:
         }
 
 
-def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_file: Path | None = None,
+def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_tum: tuple[np.ndarray, np.ndarray] | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
                 log: Callable[[str], None] = print, camera: Camera | None = None,
                 rectified: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
     """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the last good image.
 
+    ``gt_tum``: ground truth as :func:`~nmnet_ros.datasets.read_tum` reads it, instead of the bag's poses;
     ``camera``: the calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.
     """
     reader = BagReader(bag)
     frames, chosen = read_frames(reader, **(topics or {}), rectified=rectified)
-    gt_tum = read_tum(gt_file) if gt_file else None
     run = Run(fe.config["selector"])
     n_frames, prev_gt, overlay, last_note, last_stamp = 0, None, None, None, None
     bar = None
@@ -139,9 +139,7 @@ def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_file: Path |
             if cam is None:
                 continue
             fe.camera = cam
-            T = f.gt_pose
-            if gt_tum is not None:
-                T = gt_tum[1][int(np.argmin(np.abs(gt_tum[0] - f.stamp)))]
+            T = f.gt_pose if gt_tum is None else pose_at(gt_tum, f.stamp)
             r = fe.process(f.image, f.stamp)
             run.results.append(r)
             err = frame_error(r.status, r.pose, prev_gt, T)
@@ -314,6 +312,7 @@ def main(args: argparse.Namespace) -> int:
         raise BagError(f"{args.bag}: no such bag")
     params = node_params(args)  # a bad parameters file stops here, naming it
     camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
+    gt_tum = read_tum(args.gt) if args.gt else None  # likewise
     plots_dir = args.plots or args.out.parent
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
     if args.live:
@@ -325,7 +324,7 @@ def main(args: argparse.Namespace) -> int:
                              "replay without --live for the others")
         if params["weights"]:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
-        return main_live(args, McapOutput(args.out, pose_sigmas(params)), camera, params)
+        return main_live(args, McapOutput(args.out, pose_sigmas(params)), camera, params, gt_tum)
     cfg = frontend_config(params)
     if args.selector is not None:
         cfg["selector"] = args.selector
@@ -336,11 +335,11 @@ def main(args: argparse.Namespace) -> int:
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
-        run, n, overlay = process_bag(args.bag, out, fe, args.gt, args.debug_images, not args.no_progress, topics,
+        run, n, overlay = process_bag(args.bag, out, fe, gt_tum, args.debug_images, not args.no_progress, topics,
                                       camera=camera, rectified=params["rectified"])
         runs.append(run)
         if base_fe is not None:
-            base, _, _ = process_bag(args.bag, None, base_fe, args.gt, progress=not args.no_progress, topics=topics,
+            base, _, _ = process_bag(args.bag, None, base_fe, gt_tum, progress=not args.no_progress, topics=topics,
                                      camera=camera, rectified=params["rectified"])
             base.name = "SIFT+ratio+MAGSAC++"
             runs.append(base)
@@ -389,7 +388,8 @@ def live_node_args(args: argparse.Namespace) -> list[str]:
     return out
 
 
-def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None, params: dict) -> int:
+def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None, params: dict,
+              gt_tum: tuple[np.ndarray, np.ndarray] | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
     from .live import play_live, score_recording
 
@@ -408,7 +408,7 @@ def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None, 
     processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result
     summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,
                "fps": processed / wall, "latency_p50_ms": float(np.percentile(lat, 50)),
-               "latency_p90_ms": float(np.percentile(lat, 90)), **score_recording(args.out, args.bag), "parameters": params}
+               "latency_p90_ms": float(np.percentile(lat, 90)), **score_recording(args.out, args.bag, gt_tum), "parameters": params}
     print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped, "
           f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
     if summary["median_rot_deg"] is not None:

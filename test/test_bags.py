@@ -311,6 +311,34 @@ def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag
     assert s["frames"] == 6 and s["processed"] == 4 and s["median_trans_deg"] < 2.0, s
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3  # one per processed frame after the first
 
+
+def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
+    """`--gt FILE` (TUM) gives the numbers the bag's own PoseStamped give, offline and in --live's scoring; a bad
+    file stops the replay before the output file is made, naming the file and line."""
+    from nmnet_ros.datasets import read_tum
+    from nmnet_ros.live import score_recording
+
+    tum = data_dir("kitti-07") / "groundtruth.txt"  # the poses the bag was made with, at the frames' stamps
+    runs = {}
+    for name, extra in (("bag", []), ("tum", ["--gt", str(tum)])):
+        r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / f"{name}.mcap"), "--json", str(tmp_path / f"{name}.json"),
+                  "--no-progress", *extra)
+        assert r.returncode == 0, r.stderr
+        runs[name] = json.loads((tmp_path / f"{name}.json").read_text())
+    keys = ("median_rot_deg", "median_trans_deg", "auc5", "auc10", "auc20")
+    assert runs["bag"]["auc5"] > 80 and [runs["tum"][k] for k in keys] == pytest.approx([runs["bag"][k] for k in keys]), runs
+    live_scoring = [score_recording(tmp_path / "bag.mcap", raw_bag, gt) for gt in (None, read_tum(tum))]
+    assert live_scoring[0]["scored_pairs"] == 4 and live_scoring[1] == pytest.approx(live_scoring[0])  # as --live scores
+    shifted = tmp_path / "shifted.txt"  # every pose a frame later: the errors change
+    rows = [ln.split() for ln in tum.read_text().splitlines() if not ln.startswith("#")]
+    shifted.write_text("".join(" ".join([a[0], *b[1:]]) + "\n" for a, b in zip(rows, rows[1:], strict=False)))
+    assert score_recording(tmp_path / "bag.mcap", raw_bag, read_tum(shifted)) != pytest.approx(live_scoring[0])
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0.0 1 2 3\n")
+    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--gt", str(bad), "--no-progress")
+    assert r.returncode == 2 and f"{bad}:1: expected 'timestamp tx ty tz qx qy qz qw'" in r.stderr, r.stderr
+    assert not (tmp_path / "none.mcap").exists()
+
 def test_frames_resized_from_their_calibration_get_k_scaled(raw_bag, tmp_path):
     """A half-size stream with the full-size camera_info: K is scaled (and said so), and the poses stay right."""
     import cv2

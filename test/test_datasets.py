@@ -57,3 +57,32 @@ def test_missing_images_txt_and_bad_yaml(tmp_path):
         Sequence.load(tmp_path)
     with pytest.raises(DatasetError, match="not a directory"):
         Sequence.load(tmp_path / "nope")
+
+
+def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
+    """images.txt, pairs.txt and groundtruth.txt (also `nmnet replay --gt`) name the file, the line and its columns."""
+    from nmnet_ros.datasets import read_tum
+
+    dst = tmp_path / "entry"
+    shutil.copytree(data_dir("strecha-entry-p10"), dst)
+    (dst / "pairs.txt").write_text("# i j\n0 3\nfoo bar\n")
+    with pytest.raises(DatasetError, match=r"pairs.txt:3: expected 'i j', got 'foo bar'"):
+        Sequence.load(dst)
+    (dst / "pairs.txt").write_text("4\n")
+    with pytest.raises(DatasetError, match=r"pairs.txt:1: expected 'i j', got '4'"):
+        Sequence.load(dst)
+    (dst / "pairs.txt").unlink()
+    gt = (dst / "groundtruth.txt").read_text().splitlines()
+    (dst / "groundtruth.txt").write_text("\n".join(gt[:2] + [" ".join(gt[2].split()[:7])] + gt[3:]) + "\n")
+    with pytest.raises(DatasetError, match=r"groundtruth.txt:3: expected 'timestamp tx ty tz qx qy qz qw'"):
+        Sequence.load(dst)
+    with pytest.raises(DatasetError, match=r"nope.txt: missing; expected lines 'timestamp tx ty tz"):
+        read_tum(tmp_path / "nope.txt")
+    (dst / "groundtruth.txt").write_text("\n".join(gt) + "\n")
+    rows = (dst / "images.txt").read_text().splitlines()
+    (dst / "images.txt").write_text("\n".join(rows[:1] + ["t0 images/0001.jpg"] + rows[2:]) + "\n")
+    with pytest.raises(DatasetError, match=r"images.txt:2: expected 'timestamp path', got 't0 images/0001.jpg'"):
+        Sequence.load(dst)
+    (dst / "images.txt").write_text("\n".join(rows[:1] + ["0.5"] + rows[2:]) + "\n")
+    with pytest.raises(DatasetError, match=r"images.txt:2: expected 'timestamp path', got '0.5'"):
+        Sequence.load(dst)
