@@ -309,6 +309,8 @@ def pick_topic(topics: dict[str, str], types: tuple[str, ...], what: str, wanted
     if wanted:
         if wanted not in topics:
             raise BagError(f"topic {wanted} not in the bag; it has: {listing}")
+        if topics[wanted] not in types:
+            raise BagError(f"--{what}-topic {wanted} carries {topics[wanted]}, not {' or '.join(types)}; the bag has: {listing}")
         return wanted
     found = [t for t, m in topics.items() if m in types]
     if len(found) == 1:
@@ -339,20 +341,30 @@ def decode_image_msg(msg: Any, msgtype: str) -> np.ndarray:
     return image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data, msg.is_bigendian)
 
 
-def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
-                gt_topic: str | None = None, rectified: bool = False) -> tuple[Iterator[Frame], dict[str, str | None]]:
-    """Frames of a bag with auto-detected topics; errors name the topics the bag has.
 
-    ``rectified``: the images are rectified, so their camera is camera_info's P (see caminfo).
+def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
+                  gt_topic: str | None = None) -> dict[str, str | None]:
+    """The image, camera_info and ground-truth topics to read (the ones named, else the only one of each type).
+
+    BagError, listing the bag's topics, when there is no image topic, a named one is missing or of another
+    type, or a type has several topics and none is named.
     """
     topics = reader.topics
     img_t = pick_topic(topics, IMAGE_TYPES, "image", image_topic)
     if img_t is None:
         listing = ", ".join(f"{t} [{m}]" for t, m in sorted(topics.items())) or "none"
         raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}")
-    info_t = pick_topic(topics, ("sensor_msgs/msg/CameraInfo",), "info", info_topic)
-    gt_t = pick_topic(topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)
-    chosen = {"image": img_t, "camera_info": info_t, "ground_truth": gt_t}
+    return {"image": img_t, "camera_info": pick_topic(topics, ("sensor_msgs/msg/CameraInfo",), "info", info_topic),
+            "ground_truth": pick_topic(topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)}
+
+def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
+                gt_topic: str | None = None, rectified: bool = False) -> tuple[Iterator[Frame], dict[str, str | None]]:
+    """Frames of a bag with auto-detected topics; errors name the topics the bag has.
+
+    ``rectified``: the images are rectified, so their camera is camera_info's P (see caminfo).
+    """
+    chosen = choose_topics(reader, image_topic, info_topic, gt_topic)
+    img_t, info_t, gt_t = chosen["image"], chosen["camera_info"], chosen["ground_truth"]
 
     def gen() -> Iterator[Frame]:
         camera, camera_error, gt = None, None, {}

@@ -20,12 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from .bags import BagError, BagReader, pick_topic, pose_from_msg, typestore
+from .bags import BagError, BagReader, choose_topics, pick_topic, pose_from_msg, typestore
 from .caminfo import info_fields
 from .datasets import pose_at
 from .dds import LARGE_FRAMES_PROFILE
 from .geometry import Camera, pose_auc
-from .imgconv import IMAGE_TYPES
 from .mcap_out import McapOutput
 from .posemsg import estimate_of_message
 from .replay import frame_error
@@ -73,23 +72,29 @@ def live_env() -> dict[str, str]:
     return env
 
 
+def live_topics(bag: Path, image_topic: str | None = None, info_topic: str | None = None,
+                gt_topic: str | None = None) -> dict[str, str | None]:
+    """The topics a live replay plays and scores (:func:`~nmnet_ros.bags.choose_topics`); BagError for a ROS 1 bag."""
+    reader = BagReader(bag)
+    if reader.kind == "bag":
+        raise BagError(f"{bag}: live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags offline (without --live)")
+    return choose_topics(reader, image_topic, info_topic, gt_topic)
+
+
 def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log: Callable[[str], None] = print,
-              camera: Camera | None = None) -> dict:
+              camera: Camera | None = None, topics: dict[str, str | None] | None = None) -> dict:
     """Play, record, stop the node; returns counts and latencies.
 
-    ``camera``: published as camera_info with every image instead of the bag's camera_info.
+    ``camera``: published as camera_info with every image instead of the bag's camera_info; ``topics``: the
+    :func:`live_topics` to play (default: the bag's only image and camera_info topics).
     """
     import rclpy
     from rclpy.qos import QoSProfile, qos_profile_sensor_data
     from rclpy.serialization import deserialize_message, serialize_message
 
+    topics = topics or live_topics(bag)
     reader = BagReader(bag)
-    if reader.kind == "bag":
-        raise BagError(f"{bag}: live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags offline (without --live)")
-    img_t = pick_topic(reader.topics, IMAGE_TYPES, "image", None)
-    info_t = None if camera else pick_topic(reader.topics, ("sensor_msgs/msg/CameraInfo",), "info", None)
-    if img_t is None:
-        raise BagError(f"{bag}: no image topic; the bag has: {', '.join(sorted(reader.topics))}")
+    img_t, info_t = topics["image"], None if camera else topics["camera_info"]
     compressed = reader.topics[img_t].endswith("CompressedImage")
     env = live_env()
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTDDS_BUILTIN_TRANSPORTS",
@@ -185,7 +190,8 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
     return stats
 
 
-def score_recording(path: Path, bag: Path, gt_tum: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+def score_recording(path: Path, bag: Path, gt_tum: tuple[np.ndarray, np.ndarray] | None = None,
+                    gt_topic: str | None = None) -> dict:
     """Pose errors of a recorded ``~/relative_pose`` stream against the bag's ground truth (or ``gt_tum``, a
     :func:`~nmnet_ros.datasets.read_tum` trajectory), scored as the offline replay scores its results
     (:func:`~nmnet_ros.replay.frame_error`; "no estimate" is a failure).
@@ -200,7 +206,7 @@ def score_recording(path: Path, bag: Path, gt_tum: tuple[np.ndarray, np.ndarray]
             return pose_at(gt_tum, t_ns / 1e9)
     else:
         src = BagReader(bag)
-        gt_t = pick_topic(src.topics, ("geometry_msgs/msg/PoseStamped",), "gt", None)
+        gt_t = pick_topic(src.topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)
         gt = {m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec: pose_from_msg(m.msg)
               for m in src.messages({gt_t})} if gt_t else {}
         truth = gt.get

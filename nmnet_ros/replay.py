@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bags import BagError, BagReader, read_frames
+from .bags import BagError, BagReader, choose_topics, read_frames
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
 from .datasets import pose_at, read_camera_yaml, read_tum
@@ -316,15 +316,17 @@ def main(args: argparse.Namespace) -> int:
     plots_dir = args.plots or args.out.parent
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
     if args.live:
-        from .live import require_ros
+        from .live import live_topics, require_ros
 
         require_ros()  # no ROS here: stop, naming the package, before the output file is made
+        chosen = live_topics(args.bag, **topics)  # likewise a ROS 1 bag, a topic it lacks
         if args.selector is not None and args.selector not in NODE_ESTIMATORS:
             raise ValueError(f"--selector {args.selector}: the node runs {', '.join(NODE_ESTIMATORS)} (its pose_estimator); "
                              "replay without --live for the others")
         if params["weights"]:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
-        return main_live(args, McapOutput(args.out, pose_sigmas(params)), camera, params, gt_tum)
+        return main_live(args, McapOutput(args.out, pose_sigmas(params)), camera, params, gt_tum, chosen)
+    choose_topics(BagReader(args.bag), **topics)  # an unreadable bag or a topic it lacks stops before the output file
     cfg = frontend_config(params)
     if args.selector is not None:
         cfg["selector"] = args.selector
@@ -389,14 +391,14 @@ def live_node_args(args: argparse.Namespace) -> list[str]:
 
 
 def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None, params: dict,
-              gt_tum: tuple[np.ndarray, np.ndarray] | None = None) -> int:
+              gt_tum: tuple[np.ndarray, np.ndarray] | None = None, topics: dict[str, str | None] | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
     from .live import play_live, score_recording
 
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
     try:
-        stats = play_live(args.bag, out, args.rate, live_node_args(args), camera=camera)
+        stats = play_live(args.bag, out, args.rate, live_node_args(args), camera=camera, topics=topics)
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130
@@ -406,9 +408,10 @@ def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None, 
     wall = time.perf_counter() - t0
     lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
     processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result
+    scores = score_recording(args.out, args.bag, gt_tum, (topics or {}).get("ground_truth"))
     summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,
                "fps": processed / wall, "latency_p50_ms": float(np.percentile(lat, 50)),
-               "latency_p90_ms": float(np.percentile(lat, 90)), **score_recording(args.out, args.bag, gt_tum), "parameters": params}
+               "latency_p90_ms": float(np.percentile(lat, 90)), **scores, "parameters": params}
     print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped, "
           f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
     if summary["median_rot_deg"] is not None:

@@ -339,6 +339,46 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     assert r.returncode == 2 and f"{bad}:1: expected 'timestamp tx ty tz qx qy qz qw'" in r.stderr, r.stderr
     assert not (tmp_path / "none.mcap").exists()
 
+
+def two_camera_bag(src: Path, dst: Path) -> None:
+    """``src`` with a second image topic, /camera2/image_raw, whose frames carry an encoding nobody can decode."""
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+
+    ts = typestore()
+    with Reader(src) as r, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
+        second = w.add_connection("/camera2/image_raw", "sensor_msgs/msg/Image", typestore=ts)
+        for c, t, raw in r.messages():
+            w.write(conns[c.id], t, raw)
+            if c.msgtype == "sensor_msgs/msg/Image":
+                msg = ts.deserialize_cdr(raw, c.msgtype)
+                msg.encoding = "bogus8"
+                w.write(second, t, ts.serialize_cdr(msg, c.msgtype))
+
+
+def test_the_image_topic_is_chosen_offline_and_live_and_a_bad_choice_stops_before_the_output(raw_bag, tmp_path):
+    """A bag with two cameras: the replay asks which, --image-topic chooses (offline and, since this stop, --live: it
+    was ignored there, so --live could not play such a bag); a topic the bag lacks, or one of another type, stops
+    either mode before the output file is made, listing the bag's topics."""
+    bag = tmp_path / "two_cameras"
+    two_camera_bag(raw_bag, bag)
+    image = next(t for t, m in BagReader(raw_bag).topics.items() if m == "sensor_msgs/msg/Image")
+    for mode in ([], ["--live", "--rate", "0.5"]):
+        out = tmp_path / "out.mcap"
+        r = nmnet("replay", str(bag), "--out", str(out), "--no-progress", *mode)
+        assert r.returncode == 2 and "several image topics (/camera/image_raw, /camera2/image_raw)" in r.stderr, (mode, r.stderr)
+        for topic, error in (("/nope", "topic /nope not in the bag; it has: "),
+                             ("/ground_truth/pose", "--image-topic /ground_truth/pose carries geometry_msgs/msg/PoseStamped")):
+            r = nmnet("replay", str(bag), "--out", str(out), "--image-topic", topic, "--no-progress", *mode)
+            assert r.returncode == 2 and error in r.stderr and "/camera2/image_raw [sensor_msgs/msg/Image]" in r.stderr, r.stderr
+        assert not out.exists()
+        r = nmnet("replay", str(bag), "--out", str(out), "--json", str(tmp_path / "s.json"), "--image-topic", image,
+                  "--no-progress", *mode)
+        assert r.returncode == 0, (mode, r.stderr)
+        s = json.loads((tmp_path / "s.json").read_text())
+        assert s["frames"] == 6 and s["processed"] == 6 and s["auc5"] > 80, (mode, s)
+        out.unlink()
+
 def test_frames_resized_from_their_calibration_get_k_scaled(raw_bag, tmp_path):
     """A half-size stream with the full-size camera_info: K is scaled (and said so), and the poses stay right."""
     import cv2
