@@ -90,10 +90,15 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 
-def pose_at(trajectory: tuple[np.ndarray, np.ndarray], stamp: float) -> np.ndarray:
-    """The pose of a :func:`read_tum` trajectory nearest in time to ``stamp`` (4x4 T_WC)."""
+def pose_at(trajectory: tuple[np.ndarray, np.ndarray], stamp: float) -> np.ndarray | None:
+    """The pose of a :func:`read_tum` trajectory nearest in time to ``stamp`` (4x4 T_WC), or None when the
+    nearest is more than half the trajectory's median spacing away: a frame before, after or in a gap of
+    the ground truth is not scored against a pose of another time."""
     stamps, poses = trajectory
-    return poses[int(np.argmin(np.abs(stamps - stamp)))]
+    i = int(np.argmin(np.abs(stamps - stamp)))
+    spacing = float(np.median(np.diff(np.sort(stamps)))) if len(stamps) > 1 else 0.0
+    return poses[i] if abs(stamps[i] - stamp) <= 0.5 * spacing + 1e-6 else None
+
 
 @dataclass
 class Sequence:

@@ -333,6 +333,9 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     rows = [ln.split() for ln in tum.read_text().splitlines() if not ln.startswith("#")]
     shifted.write_text("".join(" ".join([a[0], *b[1:]]) + "\n" for a, b in zip(rows, rows[1:], strict=False)))
     assert score_recording(tmp_path / "bag.mcap", raw_bag, read_tum(shifted)) != pytest.approx(live_scoring[0])
+    gap = tmp_path / "gap.txt"  # no pose for frame 62: its two pairs are not scored (not against frame 61's pose)
+    gap.write_text("".join(" ".join(r) + "\n" for r in rows[55:62] + rows[63:70]))
+    assert score_recording(tmp_path / "bag.mcap", raw_bag, read_tum(gap))["scored_pairs"] == 2
     bad = tmp_path / "bad.txt"
     bad.write_text("0.0 1 2 3\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--gt", str(bad), "--no-progress")
