@@ -6,7 +6,7 @@ Also pair sampling by frame gap and ground-truth labels of correspondences.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
 
@@ -76,8 +76,8 @@ def quat_to_rot(q: np.ndarray) -> np.ndarray:
                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
-def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """TUM trajectory file -> (timestamps (N,), T_WC (N,4,4))."""
+def read_tum(path: Path) -> Trajectory:
+    """TUM trajectory file ('timestamp tx ty tz qx qy qz qw' lines, T_WC) -> :class:`Trajectory`."""
     rows = _read_table(path, "timestamp tx ty tz qx qy qz qw", _floats(8))
     if not rows:
         raise DatasetError(f"{path}: no poses; expected lines 'timestamp tx ty tz qx qy qz qw'")
@@ -86,18 +86,34 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
     for n, r in enumerate(a):
         T[n, :3, :3] = quat_to_rot(r[4:8])
         T[n, :3, 3] = r[1:4]
-    return a[:, 0], T
+    return Trajectory(a[:, 0], T)
 
 
+@dataclass
+class Trajectory:
+    """Ground-truth poses in time order, looked up by stamp (sorted and spaced once, not per frame)."""
 
-def pose_at(trajectory: tuple[np.ndarray, np.ndarray], stamp: float) -> np.ndarray | None:
-    """The pose of a :func:`read_tum` trajectory nearest in time to ``stamp`` (4x4 T_WC), or None when the
-    nearest is more than half the trajectory's median spacing away: a frame before, after or in a gap of
-    the ground truth is not scored against a pose of another time."""
-    stamps, poses = trajectory
-    i = int(np.argmin(np.abs(stamps - stamp)))
-    spacing = float(np.median(np.diff(np.sort(stamps)))) if len(stamps) > 1 else 0.0
-    return poses[i] if abs(stamps[i] - stamp) <= 0.5 * spacing + 1e-6 else None
+    stamps: np.ndarray  # (N,) seconds, ascending
+    poses: np.ndarray  # (N,4,4) T_WC
+    spacing: float = field(init=False)  # median time between poses (0 for one pose)
+
+    def __post_init__(self) -> None:
+        order = np.argsort(self.stamps, kind="stable")
+        self.stamps, self.poses = self.stamps[order], self.poses[order]
+        self.spacing = float(np.median(np.diff(self.stamps))) if len(self.stamps) > 1 else 0.0
+
+    def nearest(self, stamps: np.ndarray | float) -> np.ndarray:
+        """Index of the pose nearest in time to each stamp (the earlier one on a tie)."""
+        s = np.atleast_1d(np.asarray(stamps, np.float64))
+        after = np.searchsorted(self.stamps, s).clip(0, len(self.stamps) - 1)
+        before = (after - 1).clip(0)
+        return np.where(np.abs(self.stamps[before] - s) <= np.abs(self.stamps[after] - s), before, after)
+
+    def at(self, stamp: float) -> np.ndarray | None:
+        """The pose at ``stamp`` (4x4 T_WC), or None when the nearest is more than half the spacing away: a
+        frame before, after or in a gap of the ground truth is not scored against a pose of another time."""
+        i = int(self.nearest(stamp)[0])
+        return self.poses[i] if abs(self.stamps[i] - stamp) <= 0.5 * self.spacing + 1e-6 else None
 
 
 @dataclass
@@ -125,10 +141,8 @@ class Sequence:
         paths = [path for _, path in rows]
         poses = None
         if (root / "groundtruth.txt").is_file():
-            gt_stamps, poses = read_tum(root / "groundtruth.txt")
-            if len(gt_stamps) != len(stamps):
-                idx = [int(np.argmin(np.abs(gt_stamps - s))) for s in stamps]
-                poses = poses[idx]
+            gt = read_tum(root / "groundtruth.txt")
+            poses = gt.poses if len(gt.stamps) == len(stamps) else gt.poses[gt.nearest(stamps)]
         pairs = None
         if (root / "pairs.txt").is_file():
             pairs = _read_table(root / "pairs.txt", "i j", lambda r: (int(r[0]), int(r[1])))

@@ -22,7 +22,7 @@ import numpy as np
 
 from .bags import BagError, BagReader, choose_topics, pick_topic, pose_from_msg, typestore
 from .caminfo import info_fields
-from .datasets import pose_at
+from .datasets import Trajectory
 from .dds import LARGE_FRAMES_PROFILE
 from .geometry import Camera, pose_auc
 from .mcap_out import McapOutput
@@ -190,10 +190,10 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
     return stats
 
 
-def score_recording(path: Path, bag: Path, gt_tum: tuple[np.ndarray, np.ndarray] | None = None,
+def score_recording(path: Path, bag: Path, gt_tum: Trajectory | None = None,
                     gt_topic: str | None = None) -> dict:
     """Pose errors of a recorded ``~/relative_pose`` stream against the bag's ground truth (or ``gt_tum``, a
-    :func:`~nmnet_ros.datasets.read_tum` trajectory), scored as the offline replay scores its results
+    :func:`~nmnet_ros.datasets.read_tum` Trajectory), scored as the offline replay scores its results
     (:func:`~nmnet_ros.replay.frame_error`; "no estimate" is a failure).
 
     Each message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the
@@ -203,7 +203,7 @@ def score_recording(path: Path, bag: Path, gt_tum: tuple[np.ndarray, np.ndarray]
     poses = [(m.log_time_ns, m.msg) for m in rec.messages({f"/{NODE_NAME}/relative_pose"})]
     if gt_tum is not None:
         def truth(t_ns: int) -> np.ndarray | None:
-            return pose_at(gt_tum, t_ns / 1e9)
+            return gt_tum.at(t_ns / 1e9)
     else:
         src = BagReader(bag)
         gt_t = pick_topic(src.topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)

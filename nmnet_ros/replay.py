@@ -21,7 +21,7 @@ import numpy as np
 from .bags import BagError, BagReader, choose_topics, read_frames
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
-from .datasets import pose_at, read_camera_yaml, read_tum
+from .datasets import Trajectory, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
 from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose
@@ -90,13 +90,13 @@ class Run:
         }
 
 
-def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_tum: tuple[np.ndarray, np.ndarray] | None = None,
+def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_tum: Trajectory | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
                 log: Callable[[str], None] = print, camera: Camera | None = None,
                 rectified: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
     """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the last good image.
 
-    ``gt_tum``: ground truth as :func:`~nmnet_ros.datasets.read_tum` reads it, instead of the bag's poses;
+    ``gt_tum``: ground truth from a TUM file (:func:`~nmnet_ros.datasets.read_tum`), instead of the bag's poses;
     ``camera``: the calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.
     """
     reader = BagReader(bag)
@@ -139,7 +139,7 @@ def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_tum: tuple[n
             if cam is None:
                 continue
             fe.camera = cam
-            T = f.gt_pose if gt_tum is None else pose_at(gt_tum, f.stamp)
+            T = f.gt_pose if gt_tum is None else gt_tum.at(f.stamp)
             r = fe.process(f.image, f.stamp)
             run.results.append(r)
             err = frame_error(r.status, r.pose, prev_gt, T)
@@ -391,7 +391,7 @@ def live_node_args(args: argparse.Namespace) -> list[str]:
 
 
 def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None, params: dict,
-              gt_tum: tuple[np.ndarray, np.ndarray] | None = None, topics: dict[str, str | None] | None = None) -> int:
+              gt_tum: Trajectory | None = None, topics: dict[str, str | None] | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
     from .live import play_live, score_recording
 

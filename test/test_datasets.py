@@ -39,6 +39,18 @@ def test_pairs_txt_is_honoured(tmp_path):
         Sequence.load(dst)
 
 
+def test_ground_truth_with_other_stamps_than_the_images_gives_each_image_its_nearest_pose(tmp_path):
+    """groundtruth.txt need not have a row per image (a faster tracker, extra poses): each image takes the pose
+    nearest in time, whatever the rows' order."""
+    src = data_dir("strecha-entry-p10")
+    dst = tmp_path / "entry"
+    shutil.copytree(src, dst)
+    rows = [ln for ln in (src / "groundtruth.txt").read_text().splitlines() if not ln.startswith("#")]
+    far = "100.0 " + " ".join(rows[0].split()[1:])
+    (dst / "groundtruth.txt").write_text("\n".join([far, *reversed(rows)]) + "\n")
+    np.testing.assert_array_equal(Sequence.load(dst).poses, Sequence.load(src).poses)
+
+
 def test_empty_folder_names_missing_camera_yaml(tmp_path):
     with pytest.raises(DatasetError, match="camera.yaml"):
         Sequence.load(tmp_path)
@@ -78,6 +90,9 @@ def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
         Sequence.load(dst)
     with pytest.raises(DatasetError, match=r"nope.txt: missing; expected lines 'timestamp tx ty tz"):
         read_tum(tmp_path / "nope.txt")
+    (tmp_path / "empty.txt").write_text("# timestamp tx ty tz qx qy qz qw\n\n")
+    with pytest.raises(DatasetError, match=r"empty.txt: no poses; expected lines 'timestamp tx ty tz"):
+        read_tum(tmp_path / "empty.txt")
     (dst / "groundtruth.txt").write_text("\n".join(gt) + "\n")
     rows = (dst / "images.txt").read_text().splitlines()
     (dst / "images.txt").write_text("\n".join(rows[:1] + ["t0 images/0001.jpg"] + rows[2:]) + "\n")
