@@ -171,8 +171,15 @@ class BagReader:
             raise BagError(f"{self.path}: no such bag")
         self.kind = _bag_kind(self.path)
         self.warnings: list[str] = []
+        self._told: set[str] = set()
         self._salvaged: _Db3Salvage | None = None
         self.topics = self._topics()
+
+    def new_warnings(self) -> list[str]:
+        """The warnings not handed out before: a second pass over a damaged bag finds the same damage again."""
+        new = [w for w in dict.fromkeys(self.warnings) if w not in self._told]
+        self._told.update(new)
+        return new
 
     def _mcap_file(self) -> Path:
         return sorted(self.path.glob("*.mcap"))[0] if self.path.is_dir() else self.path

@@ -72,16 +72,15 @@ def live_env() -> dict[str, str]:
     return env
 
 
-def live_topics(bag: Path, image_topic: str | None = None, info_topic: str | None = None,
+def live_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
                 gt_topic: str | None = None) -> dict[str, str | None]:
     """The topics a live replay plays and scores (:func:`~nmnet_ros.bags.choose_topics`); BagError for a ROS 1 bag."""
-    reader = BagReader(bag)
     if reader.kind == "bag":
-        raise BagError(f"{bag}: live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags offline (without --live)")
+        raise BagError(f"{reader.path}: live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags offline (without --live)")
     return choose_topics(reader, image_topic, info_topic, gt_topic)
 
 
-def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log: Callable[[str], None] = print,
+def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log: Callable[[str], None] = print,
               camera: Camera | None = None, topics: dict[str, str | None] | None = None) -> dict:
     """Play, record, stop the node; returns counts and latencies.
 
@@ -92,8 +91,7 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
     from rclpy.qos import QoSProfile, qos_profile_sensor_data
     from rclpy.serialization import deserialize_message, serialize_message
 
-    topics = topics or live_topics(bag)
-    reader = BagReader(bag)
+    topics = topics or live_topics(reader)
     img_t, info_t = topics["image"], None if camera else topics["camera_info"]
     compressed = reader.topics[img_t].endswith("CompressedImage")
     env = live_env()
@@ -190,9 +188,9 @@ def play_live(bag: Path, out: McapOutput, rate: float = 1.0, node_args: list[str
     return stats
 
 
-def score_recording(path: Path, bag: Path, gt_tum: Trajectory | None = None,
+def score_recording(path: Path, source: BagReader, gt_tum: Trajectory | None = None,
                     gt_topic: str | None = None) -> dict:
-    """Pose errors of a recorded ``~/relative_pose`` stream against the bag's ground truth (or ``gt_tum``, a
+    """Pose errors of a recorded ``~/relative_pose`` stream against the ``source`` bag's ground truth (or ``gt_tum``, a
     :func:`~nmnet_ros.datasets.read_tum` Trajectory), scored as the offline replay scores its results
     (:func:`~nmnet_ros.replay.frame_error`; "no estimate" is a failure).
 
@@ -205,10 +203,9 @@ def score_recording(path: Path, bag: Path, gt_tum: Trajectory | None = None,
         def truth(t_ns: int) -> np.ndarray | None:
             return gt_tum.at(t_ns / 1e9)
     else:
-        src = BagReader(bag)
-        gt_t = pick_topic(src.topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)
+        gt_t = pick_topic(source.topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)
         gt = {m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec: pose_from_msg(m.msg)
-              for m in src.messages({gt_t})} if gt_t else {}
+              for m in source.messages({gt_t})} if gt_t else {}
         truth = gt.get
     errs = []
     for (t_prev, _), (t_cur, msg) in zip(poses, poses[1:], strict=False):

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bags import BagError, BagReader, choose_topics, read_frames
+from .bags import BagReader, choose_topics, read_frames
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
 from .datasets import Trajectory, read_camera_yaml, read_tum
@@ -90,16 +90,17 @@ class Run:
         }
 
 
-def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_tum: Trajectory | None = None,
+def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, gt_tum: Trajectory | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
                 log: Callable[[str], None] = print, camera: Camera | None = None,
                 rectified: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
     """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the last good image.
 
+    ``reader``: the bag, opened once (opening scans an .mcap whole) and read again for each pass.
+
     ``gt_tum``: ground truth from a TUM file (:func:`~nmnet_ros.datasets.read_tum`), instead of the bag's poses;
     ``camera``: the calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.
     """
-    reader = BagReader(bag)
     frames, chosen = read_frames(reader, **(topics or {}), rectified=rectified)
     run = Run(fe.config["selector"])
     n_frames, prev_gt, overlay, last_note, last_stamp = 0, None, None, None, None
@@ -107,7 +108,8 @@ def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_tum: Traject
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(desc=f"replay {bag.name}", unit="frame", file=sys.stderr, disable=None)  # off when stderr is no terminal (logs, CI)
+        bar = tqdm(desc=f"replay {reader.path.name}", unit="frame", file=sys.stderr,
+                   disable=None)  # off when stderr is no terminal (logs, CI)
     t0 = time.perf_counter()
     try:
         for f in frames:
@@ -160,7 +162,7 @@ def process_bag(bag: Path, out: McapOutput | None, fe: Frontend, gt_tum: Traject
         run.seconds = time.perf_counter() - t0
         if bar is not None:
             bar.close()
-    for w in reader.warnings:
+    for w in reader.new_warnings():
         log(f"warning: {w}")
     return run, n_frames, overlay
 
@@ -308,8 +310,7 @@ def node_params(args: argparse.Namespace) -> dict:
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay`` (offline)."""
-    if not args.bag.exists():
-        raise BagError(f"{args.bag}: no such bag")
+    reader = BagReader(args.bag)  # a missing or unreadable bag stops here
     params = node_params(args)  # a bad parameters file stops here, naming it
     camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
     gt_tum = read_tum(args.gt) if args.gt else None  # likewise
@@ -319,14 +320,14 @@ def main(args: argparse.Namespace) -> int:
         from .live import live_topics, require_ros
 
         require_ros()  # no ROS here: stop, naming the package, before the output file is made
-        chosen = live_topics(args.bag, **topics)  # likewise a ROS 1 bag, a topic it lacks
+        chosen = live_topics(reader, **topics)  # likewise a ROS 1 bag, a topic it lacks
         if args.selector is not None and args.selector not in NODE_ESTIMATORS:
             raise ValueError(f"--selector {args.selector}: the node runs {', '.join(NODE_ESTIMATORS)} (its pose_estimator); "
                              "replay without --live for the others")
         if params["weights"]:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
-        return main_live(args, McapOutput(args.out, pose_sigmas(params)), camera, params, gt_tum, chosen)
-    choose_topics(BagReader(args.bag), **topics)  # an unreadable bag or a topic it lacks stops before the output file
+        return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params, gt_tum, chosen)
+    choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
     cfg = frontend_config(params)
     if args.selector is not None:
         cfg["selector"] = args.selector
@@ -337,11 +338,11 @@ def main(args: argparse.Namespace) -> int:
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
-        run, n, overlay = process_bag(args.bag, out, fe, gt_tum, args.debug_images, not args.no_progress, topics,
+        run, n, overlay = process_bag(reader, out, fe, gt_tum, args.debug_images, not args.no_progress, topics,
                                       camera=camera, rectified=params["rectified"])
         runs.append(run)
         if base_fe is not None:
-            base, _, _ = process_bag(args.bag, None, base_fe, gt_tum, progress=not args.no_progress, topics=topics,
+            base, _, _ = process_bag(reader, None, base_fe, gt_tum, progress=not args.no_progress, topics=topics,
                                      camera=camera, rectified=params["rectified"])
             base.name = "SIFT+ratio+MAGSAC++"
             runs.append(base)
@@ -390,7 +391,7 @@ def live_node_args(args: argparse.Namespace) -> list[str]:
     return out
 
 
-def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None, params: dict,
+def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, camera: Camera | None, params: dict,
               gt_tum: Trajectory | None = None, topics: dict[str, str | None] | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
     from .live import play_live, score_recording
@@ -398,7 +399,7 @@ def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None, 
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
     try:
-        stats = play_live(args.bag, out, args.rate, live_node_args(args), camera=camera, topics=topics)
+        stats = play_live(reader, out, args.rate, live_node_args(args), camera=camera, topics=topics)
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130
@@ -408,7 +409,7 @@ def main_live(args: argparse.Namespace, out: McapOutput, camera: Camera | None, 
     wall = time.perf_counter() - t0
     lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
     processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result
-    scores = score_recording(args.out, args.bag, gt_tum, (topics or {}).get("ground_truth"))
+    scores = score_recording(args.out, reader, gt_tum, (topics or {}).get("ground_truth"))
     summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,
                "fps": processed / wall, "latency_p50_ms": float(np.percentile(lat, 50)),
                "latency_p90_ms": float(np.percentile(lat, 90)), **scores, "parameters": params}

@@ -94,6 +94,21 @@ def test_truncated_mcap_reports_and_uses_readable_part(tmp_path):
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"] - 1
 
 
+def test_a_damaged_bag_read_twice_is_reported_once(tmp_path):
+    """The replay reads a bag once per pass (--baseline: twice) from one reader; each pass meets the same damage,
+    which is said once."""
+    src = next(SAMPLE_BAG.glob("*.mcap"))
+    cut = tmp_path / "cut.mcap"
+    data = src.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.3)])
+    reader = BagReader(cut)
+    counts = []
+    for _ in range(2):
+        counts.append(sum(1 for _ in reader.messages(set(reader.topics))))
+        counts.append(reader.new_warnings())
+    assert counts[0] == counts[2] > 0 and len(counts[1]) == 1 and "truncated" in counts[1][0] and counts[3] == [], counts
+
+
 def test_truncated_db3_reports_and_uses_readable_part(tmp_path):
     bag = tmp_path / "full"
     assert make_bag(data_dir("kitti-07"), bag, "sqlite3", compressed=True, frames=range(0, 30)) == 30
@@ -107,6 +122,12 @@ def test_truncated_db3_reports_and_uses_readable_part(tmp_path):
     s = json.loads((tmp_path / "s.json").read_text())
     assert 3 <= s["processed"] < 30
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"] - 1
+
+
+def test_a_ros1_bag_is_refused_by_live_replay_before_the_output_file(bags, tmp_path):
+    r = nmnet("replay", str(bags["ros1"]), "--live", "--out", str(tmp_path / "live.mcap"), "--no-progress")
+    assert r.returncode == 2 and "live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags offline" in r.stderr, r.stderr
+    assert not (tmp_path / "live.mcap").exists()
 
 
 def test_truncated_ros1_bag_is_a_clear_error(bags, tmp_path):
@@ -327,15 +348,16 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
         runs[name] = json.loads((tmp_path / f"{name}.json").read_text())
     keys = ("median_rot_deg", "median_trans_deg", "auc5", "auc10", "auc20")
     assert runs["bag"]["auc5"] > 80 and [runs["tum"][k] for k in keys] == pytest.approx([runs["bag"][k] for k in keys]), runs
-    live_scoring = [score_recording(tmp_path / "bag.mcap", raw_bag, gt) for gt in (None, read_tum(tum))]
+    source = BagReader(raw_bag)
+    live_scoring = [score_recording(tmp_path / "bag.mcap", source, gt) for gt in (None, read_tum(tum))]
     assert live_scoring[0]["scored_pairs"] == 4 and live_scoring[1] == pytest.approx(live_scoring[0])  # as --live scores
     shifted = tmp_path / "shifted.txt"  # every pose a frame later: the errors change
     rows = [ln.split() for ln in tum.read_text().splitlines() if not ln.startswith("#")]
     shifted.write_text("".join(" ".join([a[0], *b[1:]]) + "\n" for a, b in zip(rows, rows[1:], strict=False)))
-    assert score_recording(tmp_path / "bag.mcap", raw_bag, read_tum(shifted)) != pytest.approx(live_scoring[0])
+    assert score_recording(tmp_path / "bag.mcap", source, read_tum(shifted)) != pytest.approx(live_scoring[0])
     gap = tmp_path / "gap.txt"  # no pose for frame 62: its two pairs are not scored (not against frame 61's pose)
     gap.write_text("".join(" ".join(r) + "\n" for r in rows[55:62] + rows[63:70]))
-    assert score_recording(tmp_path / "bag.mcap", raw_bag, read_tum(gap))["scored_pairs"] == 2
+    assert score_recording(tmp_path / "bag.mcap", source, read_tum(gap))["scored_pairs"] == 2
     bad = tmp_path / "bad.txt"
     bad.write_text("0.0 1 2 3\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--gt", str(bad), "--no-progress")
