@@ -48,7 +48,7 @@ from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
 from .model_fast import precision_note
 from .params import PARAMS, STARTUP_ONLY, check_choices, frontend_config, pose_sigmas
-from .pipeline import FrameResult, Frontend, Prepared, stamp_order
+from .pipeline import FrameResult, Frontend, Prepared, stamp_order, stamp_warning
 from .posemsg import relative_pose_of_current
 
 
@@ -325,14 +325,10 @@ class NMNetNode(Node):
             return None
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         kind = stamp_order(self._last_stamp, stamp, self.frontend.config["time_jump_s"])
-        if kind == "time_jump":
-            self._warn("time_jump", f"frame stamp {stamp:.6f} is {self._last_stamp - stamp:.1f} s before the previous one "
-                                    "(a bag played in a loop, or the clock was reset): restarting from this frame")
-        elif kind is not None:
-            unstamped = " (a stamp of 0: does the camera driver stamp its frames?)" if stamp == 0 else ""
-            self._warn(kind, f"frame stamp {stamp:.6f} is not after the previous {self._last_stamp:.6f} ({kind}): "
-                             f"skipped{unstamped}")
-            return None
+        if kind is not None:
+            self._warn(kind, stamp_warning(kind, self._last_stamp, stamp))
+            if kind != "time_jump":  # a jump back restarts the chain from this frame; the others are skipped
+                return None
         t = time.perf_counter()
         try:
             img = self._decode(msg)

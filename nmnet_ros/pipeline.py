@@ -110,6 +110,15 @@ def stamp_order(last: float | None, stamp: float, time_jump_s: float) -> str | N
     return "duplicate_stamp" if stamp == last else "out_of_order_stamp"
 
 
+def stamp_warning(kind: str, last: float, stamp: float) -> str:
+    """What the node and the replay say about a frame :func:`stamp_order` did not take in order."""
+    if kind == "time_jump":
+        return (f"frame stamp {stamp:.6f} is {last - stamp:.1f} s before the previous one (a bag played in a loop, or "
+                "the clock was reset): restarting from this frame")
+    unstamped = " (a stamp of 0: does the camera driver stamp its frames?)" if stamp == 0 else ""
+    return f"frame stamp {stamp:.6f} is not after the previous {last:.6f} ({kind}): skipped{unstamped}"
+
+
 @dataclass
 class FrameResult:
     """What the front end has to say about one frame (relative to the previous one)."""

@@ -28,7 +28,7 @@ from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_p
 from .mcap_out import McapOutput
 from .model import load_model
 from .params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
-from .pipeline import RESTARTS, FrameResult, Frontend, stamp_order
+from .pipeline import RESTARTS, FrameResult, Frontend, stamp_order, stamp_warning
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
 STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
@@ -125,14 +125,10 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, gt_tum:
                                                             else "no camera_info yet (give the calibration with --camera)"))
                 continue
             order = stamp_order(last_stamp, f.stamp, fe.config["time_jump_s"])
-            if order == "time_jump":
-                log(f"frame at {f.stamp:.6f}: {last_stamp - f.stamp:.1f} s before the previous frame (a bag recorded in a "
-                    "loop, or a clock reset): a new chain starts here")
-            elif order is not None:
-                unstamped = " (a stamp of 0: did the camera driver stamp its frames?)" if f.stamp == 0 else ""
-                log(f"frame at {f.stamp:.6f}: skipped, its stamp is not after the previous frame's {last_stamp:.6f} "
-                    f"({order}, as the node skips it){unstamped}")
-                continue
+            if order is not None:
+                log(stamp_warning(order, last_stamp, f.stamp) + " (as the node does)")
+                if order != "time_jump":
+                    continue
             last_stamp = f.stamp
             cam, note = fit_camera(calibration, (f.image.shape[1], f.image.shape[0]))
             if note and note != last_note:

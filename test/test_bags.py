@@ -327,11 +327,41 @@ def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag
     r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
     assert r.returncode == 0, r.stderr
     out = r.stdout + r.stderr
-    assert out.count("(duplicate_stamp, as the node skips it)") == 1 and out.count("(out_of_order_stamp, as the node skips it)") == 1, out
+    assert out.count("(duplicate_stamp): skipped (as the node does)") == 1, out
+    assert out.count("(out_of_order_stamp): skipped (as the node does)") == 1, out
     s = json.loads((tmp_path / "s.json").read_text())
     assert s["frames"] == 6 and s["processed"] == 4 and s["median_trans_deg"] < 2.0, s
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3  # one per processed frame after the first
 
+
+def test_replay_restarts_the_chain_at_a_frame_stamped_far_back_as_the_node_does(raw_bag, tmp_path):
+    """A frame more than time_jump_s before the one before (a bag recorded in a loop) is kept and starts a new
+    chain: it gets no relative pose; the frame after it is related to it again."""
+    from rosbags.typesys.stores.ros2_humble import builtin_interfaces__msg__Time as Time
+
+    from nmnet_ros.posemsg import estimate_of_message
+
+    n = [0]
+
+    def loop(topic, msg):
+        if msg.__class__.__name__.endswith("Image"):
+            n[0] += 1
+            if n[0] >= 5:  # the last two frames, 3 s earlier
+                msg.header.stamp = Time(sec=msg.header.stamp.sec - 3, nanosec=msg.header.stamp.nanosec)
+        return msg
+
+    bag = tmp_path / "looped"
+    rewrite_bag(raw_bag, bag, loop)
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert (r.stdout + r.stderr).count("restarting from this frame (as the node does)") == 1, r.stdout + r.stderr
+    s = json.loads((tmp_path / "s.json").read_text())
+    assert s["processed"] == 6 and s["median_trans_deg"] < 2.0, s
+    status = []
+    for m in BagReader(tmp_path / "o.mcap").messages({"/nmnet_node/relative_pose"}):
+        o, t = m.msg.pose.pose.orientation, m.msg.pose.pose.position
+        status.append(estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([t.x, t.y, t.z]), m.msg.pose.covariance)[0])
+    assert status == ["ok", "ok", "ok", "no_estimate", "ok"], status  # the restart says "no estimate", then relates again
 
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     """`--gt FILE` (TUM) gives the numbers the bag's own PoseStamped give, offline and in --live's scoring; a bad
