@@ -348,7 +348,6 @@ def decode_image_msg(msg: Any, msgtype: str) -> np.ndarray:
     return image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data, msg.is_bigendian)
 
 
-
 def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
                   gt_topic: str | None = None) -> dict[str, str | None]:
     """The image, camera_info and ground-truth topics to read (the ones named, else the only one of each type).
@@ -363,6 +362,7 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
         raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}")
     return {"image": img_t, "camera_info": pick_topic(topics, ("sensor_msgs/msg/CameraInfo",), "info", info_topic),
             "ground_truth": pick_topic(topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)}
+
 
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
                 gt_topic: str | None = None, rectified: bool = False) -> tuple[Iterator[Frame], dict[str, str | None]]:

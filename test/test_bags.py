@@ -307,7 +307,6 @@ def test_a_refused_camera_info_is_named_for_every_frame_it_stops(raw_bag, tmp_pa
     assert "no camera_info yet" not in out
 
 
-
 def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag, tmp_path):
     """A frame stamped as the one before (a driver republishing) or before it (within time_jump_s) is skipped
     and named, as the node skips it; the next frame in order is related to the last one taken."""
@@ -362,6 +361,7 @@ def test_replay_restarts_the_chain_at_a_frame_stamped_far_back_as_the_node_does(
         o, t = m.msg.pose.pose.orientation, m.msg.pose.pose.position
         status.append(estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([t.x, t.y, t.z]), m.msg.pose.covariance)[0])
     assert status == ["ok", "ok", "ok", "no_estimate", "ok"], status  # the restart says "no estimate", then relates again
+
 
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     """`--gt FILE` (TUM) gives the numbers the bag's own PoseStamped give, offline and in --live's scoring; a bad
@@ -433,6 +433,7 @@ def test_the_image_topic_is_chosen_offline_and_live_and_a_bad_choice_stops_befor
         s = json.loads((tmp_path / "s.json").read_text())
         assert s["frames"] == 6 and s["processed"] == 6 and s["auc5"] > 80, (mode, s)
         out.unlink()
+
 
 def test_frames_resized_from_their_calibration_get_k_scaled(raw_bag, tmp_path):
     """A half-size stream with the full-size camera_info: K is scaled (and said so), and the poses stay right."""

@@ -197,7 +197,6 @@ def test_frontend_reconfigures_while_running(tmp_path):
     assert fe.process(img[1], 0.4).num_keypoints <= 500
 
 
-
 def test_a_detector_swap_between_the_two_stages_starts_a_new_chain():
     """The node's two stages run beside `ros2 param set`: a frame detected before a new detector and one
     detected after it are never related (their features are of two detectors), in whichever order it lands."""
@@ -234,6 +233,7 @@ def test_a_frame_is_related_with_the_camera_it_was_prepared_with():
     r = fe.process_prepared(p, 0.1)
     assert r.status == "ok" and max(pose_error_deg(r.pose, R_gt, t_gt)) < 1.0
 
+
 def test_a_frame_from_before_the_previous_one_starts_a_new_chain():
     """A bag played in a loop (or a clock reset): its first frame again is not related to the loop's last one."""
     from nmnet_ros.pipeline import Frontend
@@ -247,7 +247,6 @@ def test_a_frame_from_before_the_previous_one_starts_a_new_chain():
     assert r.status == "ok" and r.num_selected > 100  # the new chain relates its frames again
 
 
-
 def test_stamp_order_is_the_rule_the_node_and_the_replay_share():
     from nmnet_ros.pipeline import stamp_order
 
@@ -255,6 +254,7 @@ def test_stamp_order_is_the_rule_the_node_and_the_replay_share():
     assert stamp_order(5.0, 5.0, 1.0) == "duplicate_stamp"
     assert [stamp_order(5.0, 4.5, 1.0), stamp_order(5.0, 4.0, 1.0)] == ["out_of_order_stamp"] * 2  # 1 s back: not yet a jump
     assert stamp_order(5.0, 3.9, 1.0) == "time_jump" and stamp_order(5.0, 0.0, 10.0) == "out_of_order_stamp"
+
 
 def test_a_bad_weights_file_is_refused_by_every_method(tmp_path):
     """build() checks every weights file it is given, also one the method does not use: the caller

@@ -60,6 +60,7 @@ def cut_at(u: float) -> Callable:
     """The variant that hands MAGSAC++ the matches scored above ``u`` instead of the calibrated cut."""
     return lambda c, s, t, _: (np.flatnonzero(s > u),) * 2 + (U,)
 
+
 # name -> (c, scores, calibrated cut, the network's scores of other correspondences)
 #      -> (indices MAGSAC++ samples from, indices the polish runs over, PROSAC?)
 Variant = Callable[[Correspondences, np.ndarray, float, Callable], tuple[np.ndarray, np.ndarray, bool]]
