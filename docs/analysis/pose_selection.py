@@ -10,20 +10,16 @@ needs the ground truth) is the ceiling. AUC@5 and paired differences to both pip
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable
 
 import numpy as np
-from robust_variants import CFG, SPLITS, magsac
+from robust_variants import arguments, magsac, split_pairs
 
-from nmnet_ros.cache import FeatureCache
-from nmnet_ros.detectors import make_detector
-from nmnet_ros.evaluate import load_eval_pairs, paired_auc_difference, per_sequence_table
+from nmnet_ros.evaluate import paired_auc_difference, per_sequence_table
 from nmnet_ros.geometry import essential_from_pose, pose_error_deg, sampson_distance
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
-from nmnet_ros.pairs import to_correspondences
-from nmnet_ros.selectors import classic_mask, nmnet_scores
+from nmnet_ros.selectors import classic_mask
 
 # name -> (Sampson distances in pixels of all matches, NM-Net's scores, the union of both inputs) -> support
 Rule = Callable[[np.ndarray, np.ndarray, np.ndarray], float]
@@ -37,44 +33,34 @@ RULES: dict[str, Rule] = {
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("data", help="the ../shared/data folder")
-    ap.add_argument("--detector", default="hessian-affine-fast")
-    ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--pairs", choices=sorted(SPLITS), default="train")
-    args = ap.parse_args()
+    args = arguments(__doc__, "hessian-affine-fast", "train")
     model = FastNMNet(load_model(None, "nmnet"))
-    cache = FeatureCache(make_detector(args.detector))
     errors: dict[str, list] = {k: [] for k in ("ratio+magsac", "nmnet+magsac", "best of two (ground truth)", *RULES)}
     groups = []
-    for name_range, max_pairs in SPLITS[args.pairs]:
-        spec = f"{args.data}/{name_range}"
-        for p in load_eval_pairs([spec], tuple(range(1, 11)), cache, max_pairs=max_pairs):
-            c = to_correspondences(p)
-            s = nmnet_scores(model, c, CFG)[1]
-            inputs = {"ratio+magsac": np.flatnonzero(classic_mask(c)), "nmnet+magsac": np.flatnonzero(s > model.score_threshold)}
-            union = np.zeros(len(c))
-            union[np.concatenate(list(inputs.values()))] = 1.0
-            runs: dict[str, list] = {k: [] for k in errors}
-            for seed in range(args.seeds):
-                poses = {k: magsac(c, idx, idx, seed, False) for k, idx in inputs.items()}
-                err = {k: max(pose_error_deg(pose, p.R, p.t)) for k, pose in poses.items()}
-                px = {k: None if pose is None else sampson_distance(essential_from_pose(pose.R, pose.t), c.x0, c.x1) * c.focal
-                      for k, pose in poses.items()}
-                for k in inputs:
-                    runs[k].append(err[k])
-                runs["best of two (ground truth)"].append(min(err.values()))
-                for rule, support in RULES.items():
-                    score = {k: -np.inf if d is None else support(d, s, union) for k, d in px.items()}
-                    runs[rule].append(err[max(score, key=score.get)])
-            for k, v in runs.items():
-                errors[k].append(v)
-            groups.append(spec.rsplit("/", 1)[-1])
+    for group, p, c, s in split_pairs(args, model):
+        inputs = {"ratio+magsac": np.flatnonzero(classic_mask(c)), "nmnet+magsac": np.flatnonzero(s > model.score_threshold)}
+        union = np.zeros(len(c))
+        union[np.concatenate(list(inputs.values()))] = 1.0
+        runs: dict[str, list] = {k: [] for k in errors}
+        for seed in range(args.seeds):
+            poses = {k: magsac(c, idx, idx, seed, False) for k, idx in inputs.items()}
+            err = {k: max(pose_error_deg(pose, p.R, p.t)) for k, pose in poses.items()}
+            px = {k: None if pose is None else sampson_distance(essential_from_pose(pose.R, pose.t), c.x0, c.x1) * c.focal
+                  for k, pose in poses.items()}
+            for k in inputs:
+                runs[k].append(err[k])
+            runs["best of two (ground truth)"].append(min(err.values()))
+            for rule, support in RULES.items():
+                score = {k: -np.inf if d is None else support(d, s, union) for k, d in px.items()}
+                runs[rule].append(err[max(score, key=score.get)])
+        for k, v in runs.items():
+            errors[k].append(v)
+        groups.append(group)
     e = {k: np.array(v) for k, v in errors.items()}
     print(per_sequence_table(e, groups, "nmnet+magsac"))
     print(f"\n{args.pairs} pairs ({len(groups)} x {args.seeds} seeds), AUC@5 minus ratio+magsac's / nmnet+magsac's:")
     for name in e:
-        if name not in ("ratio+magsac",):
+        if name != "ratio+magsac":
             diffs = [paired_auc_difference(e[name], e[ref]) for ref in ("ratio+magsac", "nmnet+magsac")]
             print(f"  {name}: " + " / ".join(f"{d:+.2f} [{lo:+.2f}, {hi:+.2f}]" for d, lo, hi in diffs))
 

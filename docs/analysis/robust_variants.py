@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -24,7 +24,7 @@ from nmnet_ros.evaluate import load_eval_pairs, paired_auc_difference, per_seque
 from nmnet_ros.geometry import PoseEstimate, pose_error_deg
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
-from nmnet_ros.pairs import to_correspondences
+from nmnet_ros.pairs import PairData, to_correspondences
 from nmnet_ros.selectors import DEFAULT_CONFIG, Correspondences, classic_mask, nmnet_scores, robust_fit
 
 CFG = DEFAULT_CONFIG
@@ -87,31 +87,41 @@ SPLITS = {"val": (("kitti-07:120-159", None), ("strecha-herz-jesus-p25", None)),
           "train": (("strecha-fountain-p11", 50), ("strecha-entry-p10", 50), ("kitti-07:0-119", 50))}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def arguments(doc: str, detector: str, pairs: str) -> argparse.Namespace:
+    """The command line these analyses share: the data folder, the frames, the seeds, the split."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("data", help="the ../shared/data folder")
-    ap.add_argument("--detector", default="hessian-affine")
+    ap.add_argument("--detector", default=detector)
     ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--pairs", choices=sorted(SPLITS), default="val", help="the validation split or the training pairs")
-    args = ap.parse_args()
-    model = FastNMNet(load_model(None, "nmnet"))
+    ap.add_argument("--pairs", choices=sorted(SPLITS), default=pairs, help="the validation split or the training pairs")
+    return ap.parse_args()
+
+
+def split_pairs(args: argparse.Namespace, model: FastNMNet) -> Iterator[tuple[str, PairData, Correspondences, np.ndarray]]:
+    """Every pair of ``args.pairs``: its sequence's name, the pair, its correspondences and NM-Net's scores."""
     cache = FeatureCache(make_detector(args.detector))
+    for name_range, max_pairs in SPLITS[args.pairs]:
+        spec = f"{args.data}/{name_range}"
+        for p in load_eval_pairs([spec], tuple(range(1, 11)), cache, max_pairs=max_pairs):
+            c = to_correspondences(p)
+            yield spec.rsplit("/", 1)[-1], p, c, nmnet_scores(model, c, CFG)[1]
+
+
+def main() -> None:
+    args = arguments(__doc__, "hessian-affine", "val")
+    model = FastNMNet(load_model(None, "nmnet"))
     errors: dict[str, list] = {v: [] for v in VARIANTS}
     groups = []
 
     def rescore(c: Correspondences) -> np.ndarray:
         return nmnet_scores(model, c, CFG)[1]
 
-    for name_range, max_pairs in SPLITS[args.pairs]:
-        spec = f"{args.data}/{name_range}"
-        for p in load_eval_pairs([spec], tuple(range(1, 11)), cache, max_pairs=max_pairs):
-            c = to_correspondences(p)
-            scores = rescore(c)
-            for name, variant in VARIANTS.items():
-                fit, polish, prosac = variant(c, scores, model.score_threshold, rescore)
-                errors[name].append([max(pose_error_deg(magsac(c, fit, polish, s, prosac), p.R, p.t))
-                                     for s in range(args.seeds)])
-            groups.append(spec.rsplit("/", 1)[-1])
+    for group, p, c, scores in split_pairs(args, model):
+        for name, variant in VARIANTS.items():
+            fit, polish, prosac = variant(c, scores, model.score_threshold, rescore)
+            errors[name].append([max(pose_error_deg(magsac(c, fit, polish, s, prosac), p.R, p.t))
+                                 for s in range(args.seeds)])
+        groups.append(group)
     e = {k: np.array(v) for k, v in errors.items()}
     print(per_sequence_table(e, groups, "ratio+magsac"))
     print(f"\n{args.pairs} pairs ({len(groups)} x {args.seeds} seeds), AUC@5 minus ratio+magsac's:")
@@ -119,7 +129,6 @@ def main() -> None:
         if name != "ratio+magsac":
             d, lo, hi = paired_auc_difference(e[name], e["ratio+magsac"])
             print(f"  {name}: {d:+.2f} [{lo:+.2f}, {hi:+.2f}]")
-
 
 if __name__ == "__main__":
     main()
