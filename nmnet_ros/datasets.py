@@ -16,7 +16,7 @@ import yaml
 
 from .geometry import Camera, CameraError, essential_from_pose, relative_pose, sym_epipolar_sq
 
-T = TypeVar("T")
+Row = TypeVar("Row")  # what a table row converts to
 LABEL_THRESHOLD = 1e-4  # squared symmetric epipolar distance, normalised coordinates (paper)
 
 
@@ -40,7 +40,7 @@ def read_camera_yaml(path: Path) -> Camera:
         raise DatasetError(f"{path}: {e}") from e
 
 
-def _read_table(path: Path, columns: str, convert: Callable[[list[str]], T]) -> list[T]:
+def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row]) -> list[Row]:
     """The rows of a whitespace-separated text file (blank and '#' lines skipped), each converted.
 
     ``convert`` raises ValueError (or IndexError) on a malformed row; the DatasetError then names the
