@@ -102,7 +102,10 @@ def stamp_order(last: float | None, stamp: float, time_jump_s: float) -> str | N
     """How a frame's stamp follows the last frame taken: ``None`` (later, or the first), ``"time_jump"``
     (more than ``time_jump_s`` earlier: a bag loop or a clock reset; a new chain starts from it), else
     ``"duplicate_stamp"`` / ``"out_of_order_stamp"``: the frame is skipped, as relating it would give a
-    pose for no time step or one backwards in time. The node and the replay apply the same rule."""
+    pose for no time step or one backwards in time. ``"negative_stamp"``: skipped too, as ROS time cannot
+    be negative (rclpy refuses it, and a recording cannot log it). The node and the replay apply the same rule."""
+    if stamp < 0:
+        return "negative_stamp"
     if last is None or stamp > last:
         return None
     if stamp < last - time_jump_s:
@@ -110,11 +113,14 @@ def stamp_order(last: float | None, stamp: float, time_jump_s: float) -> str | N
     return "duplicate_stamp" if stamp == last else "out_of_order_stamp"
 
 
-def stamp_warning(kind: str, last: float, stamp: float) -> str:
+def stamp_warning(kind: str, last: float | None, stamp: float) -> str:
     """What the node and the replay say about a frame :func:`stamp_order` did not take in order."""
     if kind == "time_jump":
         return (f"frame stamp {stamp:.6f} is {last - stamp:.1f} s before the previous one (a bag played in a loop, or "
                 "the clock was reset): restarting from this frame")
+    if kind == "negative_stamp":
+        return (f"frame stamp {stamp:.6f} is negative: skipped (ROS time starts at 0; check the driver's clock, or how "
+                "the bag was restamped)")
     unstamped = " (a stamp of 0: does the camera driver stamp its frames?)" if stamp == 0 else ""
     return f"frame stamp {stamp:.6f} is not after the previous {last:.6f} ({kind}): skipped{unstamped}"
 

@@ -363,6 +363,30 @@ def test_replay_restarts_the_chain_at_a_frame_stamped_far_back_as_the_node_does(
     assert status == ["ok", "ok", "ok", "no_estimate", "ok"], status  # the restart says "no estimate", then relates again
 
 
+def test_replay_skips_frames_stamped_before_zero_and_still_writes_its_file(raw_bag, tmp_path):
+    """A negative stamp (a bag restamped too far back) is no ROS time and cannot be logged in an .mcap: such
+    frames are skipped and named, as the node skips them, and the replay ends with a readable file."""
+    from rosbags.typesys.stores.ros2_humble import builtin_interfaces__msg__Time as Time
+
+    n = [0]
+
+    def back(topic, msg):
+        if msg.__class__.__name__.endswith("Image"):
+            n[0] += 1
+            if n[0] >= 5:  # the last two frames, 10 s earlier: before 0 on this sample
+                msg.header.stamp = Time(sec=msg.header.stamp.sec - 10, nanosec=msg.header.stamp.nanosec)
+        return msg
+
+    bag = tmp_path / "negative"
+    rewrite_bag(raw_bag, bag, back)
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert (r.stdout + r.stderr).count("is negative: skipped (ROS time starts at 0") == 2, r.stdout + r.stderr
+    s = json.loads((tmp_path / "s.json").read_text())
+    assert s["frames"] == 6 and s["processed"] == 4, s
+    assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3
+
+
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     """`--gt FILE` (TUM) gives the numbers the bag's own PoseStamped give, offline and in --live's scoring; a bad
     file stops the replay before the output file is made, naming the file and line."""

@@ -296,6 +296,8 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
             peer.pub_img.publish(image_msg(img2, 0.0))
             spin_until(peer.node, lambda: False, 0.3)
         assert wait_diag(peer, "warn_duplicate_stamp", 2)
+        peer.pub_img.publish(image_msg(img2, -2.0))  # not a ROS time (a bag restamped too far back)
+        assert wait_diag(peer, "warn_negative_stamp", 1)
         assert node.alive()
     out = node.output()
     assert "Traceback" not in out
@@ -305,7 +307,8 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
                    "FASTDDS_DEFAULT_PROFILES_FILE=", "600x370 but camera_info describes 1226x370, which is not the same image scaled",
                    "613x185 but camera_info describes 1226x370: K scaled by 0.5 to fit",
                    "s before the previous one (a bag played in a loop, or the clock was reset): restarting",
-                   "skipped (a stamp of 0: does the camera driver stamp its frames?)"):
+                   "skipped (a stamp of 0: does the camera driver stamp its frames?)",
+                   "frame stamp -2.000000 is negative: skipped (ROS time starts at 0"):
         assert needle in out, f"no clear warning containing {needle!r}:\n{out}"
 
 

@@ -254,6 +254,7 @@ def test_stamp_order_is_the_rule_the_node_and_the_replay_share():
     assert stamp_order(5.0, 5.0, 1.0) == "duplicate_stamp"
     assert [stamp_order(5.0, 4.5, 1.0), stamp_order(5.0, 4.0, 1.0)] == ["out_of_order_stamp"] * 2  # 1 s back: not yet a jump
     assert stamp_order(5.0, 3.9, 1.0) == "time_jump" and stamp_order(5.0, 0.0, 10.0) == "out_of_order_stamp"
+    assert [stamp_order(None, -0.5, 1.0), stamp_order(5.0, -3.0, 1.0)] == ["negative_stamp"] * 2  # not a ROS time
 
 
 def test_a_bad_weights_file_is_refused_by_every_method(tmp_path):

@@ -130,5 +130,6 @@ def main() -> None:
             d, lo, hi = paired_auc_difference(e[name], e["ratio+magsac"])
             print(f"  {name}: {d:+.2f} [{lo:+.2f}, {hi:+.2f}]")
 
+
 if __name__ == "__main__":
     main()
