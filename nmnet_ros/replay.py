@@ -59,11 +59,34 @@ def frame_error(status: str, pose: PoseEstimate | None, T_prev: np.ndarray | Non
     return pose_error_deg(pose, R, t)
 
 
+class Notes:
+    """A pass's per-frame warnings, by the kinds the node counts in diagnostics (``warn_<kind>``): each kind is
+    said in full the first ``shown`` times, then only counted, and the counts are totalled at the end, so a bag
+    from a driver that never stamps does not print a line per frame."""
+
+    def __init__(self, log: Callable[[str], None], shown: int = 3) -> None:
+        self.log, self.shown = log, shown
+        self.counts: dict[str, int] = {}
+
+    def __call__(self, kind: str, text: str | None) -> None:
+        """Count one ``kind``; say ``text`` (None: count only) while the kind is under the limit."""
+        n = self.counts[kind] = self.counts.get(kind, 0) + 1
+        if text is not None and n <= self.shown:
+            self.log(text + (f" (further '{kind}' frames are counted, not named)" if n == self.shown else ""))
+
+    def close(self) -> None:
+        """Say each kind's total that was not said frame by frame."""
+        for kind, n in self.counts.items():
+            if n > self.shown:
+                self.log(f"{kind}: {n} frames in all")
+
+
 class Run:
     """Everything one pass over the frames collects."""
 
     def __init__(self, name: str) -> None:
         self.name = name
+        self.warnings: dict[str, int] = {}  # per kind, as :class:`Notes` counted them
         self.results: list[FrameResult] = []
         self.errors: list[tuple[float, float]] = []
         self.err_stamps: list[float] = []
@@ -86,7 +109,7 @@ class Run:
             "median_trans_deg": float(np.median(e[:, 1])) if len(e) else None,
             "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2],
             "scored_pairs": len(e), "matches_per_frame": float(np.mean(matches)) if matches else 0.0,
-            "selected_per_frame": float(np.mean(sel)) if sel else 0.0, "status": statuses,
+            "selected_per_frame": float(np.mean(sel)) if sel else 0.0, "status": statuses, "warnings": dict(self.warnings),
         }
 
 
@@ -103,6 +126,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, gt_tum:
     """
     frames, chosen = read_frames(reader, **(topics or {}), rectified=rectified)
     run = Run(fe.config["selector"])
+    notes = Notes(log)
     n_frames, prev_gt, overlay, last_note, last_stamp = 0, None, None, None, None
     bar = None
     if progress:
@@ -117,22 +141,25 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, gt_tum:
             if bar is not None:
                 bar.update(1)
             if f.image is None:
-                log(f"frame at {f.stamp:.3f}: skipped, {f.error}")
+                notes("bad_image", f"frame at {f.stamp:.3f}: skipped, {f.error}")
                 continue
             calibration = camera or f.camera
             if calibration is None:
-                log(f"frame at {f.stamp:.3f}: skipped, " + (f"camera_info refused: {f.camera_error}" if f.camera_error
-                                                            else "no camera_info yet (give the calibration with --camera)"))
+                if f.camera_error:
+                    notes("bad_camera_info", f"frame at {f.stamp:.3f}: skipped, camera_info refused: {f.camera_error}")
+                else:
+                    notes("no_camera_info", f"frame at {f.stamp:.3f}: skipped, no camera_info yet (give the calibration "
+                                            "with --camera)")
                 continue
             order = stamp_order(last_stamp, f.stamp, fe.config["time_jump_s"])
             if order is not None:
-                log(stamp_warning(order, last_stamp, f.stamp) + " (as the node does)")
+                notes(order, stamp_warning(order, last_stamp, f.stamp) + " (as the node does)")
                 if order != "time_jump":
                     continue
             last_stamp = f.stamp
             cam, note = fit_camera(calibration, (f.image.shape[1], f.image.shape[0]))
-            if note and note != last_note:
-                log(f"frame at {f.stamp:.3f}: {note}")
+            if note:  # said when it changes: a scaled K holds for every frame of the stream
+                notes("camera_size_mismatch", f"frame at {f.stamp:.3f}: {note}" if note != last_note else None)
                 last_note = note
             if cam is None:
                 continue
@@ -158,6 +185,8 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, gt_tum:
         run.seconds = time.perf_counter() - t0
         if bar is not None:
             bar.close()
+        run.warnings = notes.counts
+        notes.close()
     for w in reader.new_warnings():
         log(f"warning: {w}")
     return run, n_frames, overlay
@@ -339,7 +368,8 @@ def main(args: argparse.Namespace) -> int:
         runs.append(run)
         if base_fe is not None:
             base, _, _ = process_bag(reader, None, base_fe, gt_tum, progress=not args.no_progress, topics=topics,
-                                     camera=camera, rectified=params["rectified"])
+                                     camera=camera, rectified=params["rectified"],
+                                     log=lambda _: None)  # the same frames: said once, by the first pass
             base.name = "SIFT+ratio+MAGSAC++"
             runs.append(base)
     except (KeyboardInterrupt, _Terminated):

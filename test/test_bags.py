@@ -301,10 +301,33 @@ def test_a_refused_camera_info_is_named_for_every_frame_it_stops(raw_bag, tmp_pa
 
     bag = tmp_path / "fov"
     rewrite_bag(raw_bag, bag, fov)
-    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--no-progress")
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
     out = r.stdout + r.stderr
-    assert "skipped, camera_info refused: distortion model 'fov' is not supported" in out, out
-    assert "no camera_info yet" not in out
+    assert out.count("skipped, camera_info refused: distortion model 'fov' is not supported") == 3, out  # then counted
+    assert "no camera_info yet" not in out and "bad_camera_info: 6 frames in all" in out, out
+    assert json.loads((tmp_path / "s.json").read_text())["warnings"] == {"bad_camera_info": 6}
+
+
+def test_a_driver_that_never_stamps_is_named_a_few_times_then_counted(raw_bag, tmp_path):
+    """Every image stamped 0: the first frame is taken, each later one is a duplicate stamp; the replay says so
+    for the first three and then counts, instead of a line per frame of the bag."""
+    from rosbags.typesys.stores.ros2_humble import builtin_interfaces__msg__Time as Time
+
+    def unstamped(topic, msg):
+        if msg.__class__.__name__.endswith("Image"):
+            msg.header.stamp = Time(sec=0, nanosec=0)
+        return msg
+
+    bag = tmp_path / "unstamped"
+    rewrite_bag(raw_bag, bag, unstamped)
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    out = r.stdout + r.stderr
+    assert out.count("does the camera driver stamp its frames?") == 3, out
+    assert out.count("(further 'duplicate_stamp' frames are counted, not named)") == 1, out
+    assert "duplicate_stamp: 5 frames in all" in out, out
+    s = json.loads((tmp_path / "s.json").read_text())
+    assert s["processed"] == 1 and s["warnings"] == {"duplicate_stamp": 5}, s
 
 
 def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag, tmp_path):
@@ -330,6 +353,7 @@ def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag
     assert out.count("(out_of_order_stamp): skipped (as the node does)") == 1, out
     s = json.loads((tmp_path / "s.json").read_text())
     assert s["frames"] == 6 and s["processed"] == 4 and s["median_trans_deg"] < 2.0, s
+    assert s["warnings"] == {"duplicate_stamp": 1, "out_of_order_stamp": 1}, s
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3  # one per processed frame after the first
 
 
@@ -383,7 +407,7 @@ def test_replay_skips_frames_stamped_before_zero_and_still_writes_its_file(raw_b
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert (r.stdout + r.stderr).count("is negative: skipped (ROS time starts at 0") == 2, r.stdout + r.stderr
     s = json.loads((tmp_path / "s.json").read_text())
-    assert s["frames"] == 6 and s["processed"] == 4, s
+    assert s["frames"] == 6 and s["processed"] == 4 and s["warnings"] == {"negative_stamp": 2}, s
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3
 
 
