@@ -71,7 +71,7 @@ def _messages_for_frame(ts, seq: Sequence, i: int, compressed: bool, ros1: bool)
         header=hdr, **info_fields(seq.camera, img.shape[1], img.shape[0], ros1),
         binning_x=0, binning_y=0, roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
     out.append((TOPICS["info"], "sensor_msgs/msg/CameraInfo", info))
-    if seq.poses is not None:
+    if seq.has_pose(i):
         T = seq.poses[i]
         q = rot_to_quat(T[:3, :3])
         P_ = ts.types["geometry_msgs/msg/Point"](x=T[0, 3], y=T[1, 3], z=T[2, 3])

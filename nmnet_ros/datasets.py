@@ -116,6 +116,22 @@ class Trajectory:
         return self.poses[i] if abs(self.stamps[i] - stamp) <= 0.5 * self.spacing + 1e-6 else None
 
 
+def _poses_at(gt: Trajectory, stamps: np.ndarray, root: Path) -> np.ndarray:
+    """Each image's pose by its stamp (:meth:`Trajectory.at`), NaN where the ground truth has none: a file that
+    does not cover every image (a tracker that lost the camera) leaves those frames out, instead of giving them
+    a pose of another time."""
+    poses = np.full((len(stamps), 4, 4), np.nan)
+    for n, stamp in enumerate(stamps):
+        T = gt.at(stamp)
+        if T is not None:
+            poses[n] = T
+    if np.isnan(poses[:, 3, 3]).all():
+        raise DatasetError(f"{root / 'groundtruth.txt'}: no pose at any image's stamp (stamps {gt.stamps[0]:.6f} .. "
+                           f"{gt.stamps[-1]:.6f}, images {stamps.min():.6f} .. {stamps.max():.6f}); its timestamps must be "
+                           "those of images.txt")
+    return poses
+
+
 @dataclass
 class Sequence:
     """One sequence folder with camera, frames, optional ground-truth poses and pairs."""
@@ -124,7 +140,7 @@ class Sequence:
     camera: Camera
     stamps: np.ndarray  # (N,)
     paths: list[Path]
-    poses: np.ndarray | None  # (N,4,4) T_WC
+    poses: np.ndarray | None  # (N,4,4) T_WC; NaN for a frame groundtruth.txt has no pose for
     pairs_file: list[tuple[int, int]] | None
 
     @classmethod
@@ -141,8 +157,7 @@ class Sequence:
         paths = [path for _, path in rows]
         poses = None
         if (root / "groundtruth.txt").is_file():
-            gt = read_tum(root / "groundtruth.txt")
-            poses = gt.poses if len(gt.stamps) == len(stamps) else gt.poses[gt.nearest(stamps)]
+            poses = _poses_at(read_tum(root / "groundtruth.txt"), stamps, root)
         pairs = None
         if (root / "pairs.txt").is_file():
             pairs = _read_table(root / "pairs.txt", "i j", lambda r: (int(r[0]), int(r[1])))
@@ -165,10 +180,28 @@ class Sequence:
             raise DatasetError(f"{self.paths[i]}: cannot read image")
         return img
 
+    def has_pose(self, i: int) -> bool:
+        """Whether groundtruth.txt gives frame i a pose."""
+        return self.poses is not None and not np.isnan(self.poses[i, 3, 3])
+
+    def uncovered_note(self) -> str | None:
+        """What to tell the user when groundtruth.txt leaves frames without a pose (None when it covers all)."""
+        if self.poses is None:
+            return None
+        missing = np.flatnonzero(np.isnan(self.poses[:, 3, 3]))
+        if not len(missing):
+            return None
+        return (f"{self.root / 'groundtruth.txt'}: {len(missing)} of {len(self)} frames have no pose within half the "
+                f"file's spacing (frames {', '.join(map(str, missing[:5]))}{', ...' if len(missing) > 5 else ''}); "
+                "pairs with them are left out")
+
     def relative_pose(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """(R, t) of frame i in frame j: x_j = R x_i + t."""
         if self.poses is None:
             raise DatasetError(f"{self.root}: no groundtruth.txt, so no ground-truth pose")
+        for k in (i, j):
+            if not self.has_pose(k):
+                raise DatasetError(f"{self.root / 'groundtruth.txt'}: no pose for frame {k} ({self.paths[k].name})")
         return relative_pose(self.poses[i], self.poses[j])
 
     def pairs(self, gaps: tuple[int, ...] = (1,), frames: range | None = None) -> list[tuple[int, int]]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -37,6 +38,8 @@ def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache
     for spec in specs:
         path, frames = parse_seq_spec(spec)
         seq = Sequence.load(path)
+        if note := seq.uncovered_note():
+            print(f"warning: {note}", file=sys.stderr)
         chosen = select_pairs(seq, gaps, frames)
         if seq.pairs_file is None:
             chosen = [(i, j) for i, j in chosen if i % stride == 0]

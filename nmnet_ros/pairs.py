@@ -62,11 +62,12 @@ def select_pairs(seq: Sequence, gaps: tuple[int, ...], frames: range | None = No
     """Pairs by frame gap (or pairs.txt) that have a baseline and are co-visible.
 
     Pairs without translation (a static camera) have no epipolar geometry to label against
-    and are excluded, not labelled by noise.
+    and are excluded, not labelled by noise; so are pairs with a frame the ground truth has no pose for.
     """
     out = []
     for i, j in seq.pairs(gaps, frames):
-        if seq.poses is None or (has_baseline(seq, i, j) and view_angle_deg(seq, i, j) <= max_view_angle):
+        if seq.poses is None or (seq.has_pose(i) and seq.has_pose(j) and has_baseline(seq, i, j)
+                                 and view_angle_deg(seq, i, j) <= max_view_angle):
             out.append((i, j))
     return out
 

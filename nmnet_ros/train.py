@@ -73,6 +73,8 @@ def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min
     for spec in specs:
         path, frames = parse_seq_spec(spec)
         seq = Sequence.load(path)
+        if note := seq.uncovered_note():
+            log(f"  warning: {note}")
         chosen = select_pairs(seq, gaps, frames)
         made = (make_pair(seq, i, j, cache, label_threshold=label_threshold) for i, j in chosen)
         kept = [p for p in made if p.labels.sum() >= min_inliers]

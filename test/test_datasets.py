@@ -51,6 +51,35 @@ def test_ground_truth_with_other_stamps_than_the_images_gives_each_image_its_nea
     np.testing.assert_array_equal(Sequence.load(dst).poses, Sequence.load(src).poses)
 
 
+def test_frames_the_ground_truth_does_not_cover_are_left_out_not_given_another_frames_pose(tmp_path, capsys, cache):
+    """A groundtruth.txt without a pose at some image's stamp (a tracker that lost the camera): that frame has no
+    pose, its pairs are not selected for eval/train, a bag made from the folder has no ground truth for it, and a
+    file whose stamps match no image is refused, naming it."""
+    from nmnet_ros.bags import TOPICS, BagReader, make_bag
+    from nmnet_ros.evaluate import load_eval_pairs
+
+    src = data_dir("strecha-entry-p10")
+    dst = tmp_path / "entry"
+    shutil.copytree(src, dst)
+    rows = [ln for ln in (src / "groundtruth.txt").read_text().splitlines() if not ln.startswith("#")]
+    (dst / "groundtruth.txt").write_text("\n".join(rows[:4] + rows[5:]) + "\n")  # frame 4's pose lost
+    seq, full = Sequence.load(dst), Sequence.load(src)
+    assert [seq.has_pose(i) for i in range(len(seq))] == [i != 4 for i in range(10)]
+    assert "1 of 10 frames have no pose" in seq.uncovered_note() and full.uncovered_note() is None
+    assert select_pairs(seq, (1, 2)) == [p for p in select_pairs(full, (1, 2)) if 4 not in p]
+    assert len(select_pairs(seq, (1, 2))) < len(select_pairs(full, (1, 2)))
+    with pytest.raises(DatasetError, match="no pose for frame 4"):
+        seq.relative_pose(3, 4)
+    assert make_bag(dst, tmp_path / "bag", "mcap", frames=range(3, 6)) == 3
+    assert len(list(BagReader(tmp_path / "bag").messages({TOPICS["gt"]}))) == 2  # frames 3 and 5
+    pairs = load_eval_pairs([f"{dst}:3-5"], (1, 2), cache)  # nmnet eval says so, and evaluates (3, 5) only
+    assert [(p.i, p.j) for p in pairs] == [(3, 5)] and "1 of 10 frames have no pose" in capsys.readouterr().err
+
+    (dst / "groundtruth.txt").write_text("\n".join(f"{1000 + float(r.split()[0])} {r.split(maxsplit=1)[1]}" for r in rows))
+    with pytest.raises(DatasetError, match="groundtruth.txt: no pose at any image's stamp.*must be those of images.txt"):
+        Sequence.load(dst)
+
+
 def test_empty_folder_names_missing_camera_yaml(tmp_path):
     with pytest.raises(DatasetError, match="camera.yaml"):
         Sequence.load(tmp_path)
