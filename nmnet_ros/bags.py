@@ -100,6 +100,8 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
     if out.exists():
         raise BagError(f"{out} exists already; choose a new output path")
     ros1 = fmt == "ros1"
+    if ros1 and out.suffix != ".bag":
+        raise BagError(f"{out}: a ROS 1 bag is one file and is read by its .bag extension; name it {out.name}.bag")
     ts = typestore(ros1)
     idx = list(frames if frames is not None else range(len(seq)))
     if ros1:
@@ -158,6 +160,27 @@ def _bag_kind(path: Path) -> str:
     raise BagError(f"{path}: unknown bag type; expected a .bag, .db3 or .mcap file or a ROS 2 bag directory")
 
 
+SIGNATURES = {"mcap": b"\x89MCAP0\r\n", "db3": b"SQLite format 3\0", "bag": b"#ROSBAG V2.0"}  # how each begins
+KIND_NAMES = {"mcap": "an MCAP file", "db3": "an SQLite rosbag2 file", "bag": "a ROS 1 bag"}
+
+
+def _check_signature(path: Path, kind: str) -> None:
+    """Refuse a file whose first bytes are not its extension's format (a renamed or wrongly saved file), naming
+    the format it is, so the reader's own error (a decode error, 'file is not a database') is never all one gets.
+    A truncated bag keeps its first bytes, so this holds for the damaged files the readers salvage too."""
+    with open(path, "rb") as fh:
+        head = fh.read(max(map(len, SIGNATURES.values())))
+    if head.startswith(SIGNATURES[kind]):
+        return
+    if not head:
+        raise BagError(f"{path}: empty file")
+    actual = next((k for k, sig in SIGNATURES.items() if head.startswith(sig)), None)
+    if actual is not None:
+        raise BagError(f"{path}: {KIND_NAMES[actual]} with a .{kind} name; rename it to .{actual}")
+    raise BagError(f"{path}: not {KIND_NAMES[kind]} (it does not begin as one: {head[:12]!r}); expected a .bag, .db3 or "
+                   ".mcap file")
+
+
 class BagReader:
     """Messages of a .bag/.db3/.mcap (file or ROS 2 directory) in log-time order.
 
@@ -170,6 +193,8 @@ class BagReader:
         if not self.path.exists():
             raise BagError(f"{self.path}: no such bag")
         self.kind = _bag_kind(self.path)
+        _check_signature(self._db3_file() if self.kind == "db3" else self._mcap_file() if self.kind == "mcap"
+                         else self.path, self.kind)
         self.warnings: list[str] = []
         self._told: set[str] = set()
         self._salvaged: _Db3Salvage | None = None

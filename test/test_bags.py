@@ -172,6 +172,25 @@ def test_missing_bag_and_unknown_format(tmp_path):
         BagReader(odd)
 
 
+def test_a_bag_whose_content_is_not_its_extensions_format_is_named(bags, tmp_path):
+    """A renamed or wrongly saved file: the error says which format it is (and to rename it), or that it is none,
+    instead of the reader's own ('utf-8' codec can't decode, file is not a database); no output file is made."""
+    mcap_file = next(bags["mcap"].glob("*.mcap"))
+    cases = {"mcap_named.bag": (mcap_file.read_bytes(), "an MCAP file with a .bag name; rename it to .mcap"),
+             "bag_named.mcap": (bags["ros1"].read_bytes(), "a ROS 1 bag with a .mcap name; rename it to .bag"),
+             "db3_named.mcap": (next(bags["sqlite3"].glob("*.db3")).read_bytes(),
+                                "an SQLite rosbag2 file with a .mcap name; rename it to .db3"),
+             "junk.mcap": (b"hello world", "not an MCAP file (it does not begin as one: b'hello world')"),
+             "empty.db3": (b"", "empty file")}
+    for name, (data, says) in cases.items():
+        (tmp_path / name).write_bytes(data)
+        r = nmnet("replay", str(tmp_path / name), "--out", str(tmp_path / "o.mcap"))
+        assert r.returncode == 2 and f"{name}: {says}" in r.stderr, (name, r.stderr)
+        assert not (tmp_path / "o.mcap").exists()
+    with pytest.raises(BagError, match="a ROS 1 bag is one file .* name it b1.bag"):
+        make_bag(data_dir("kitti-07"), tmp_path / "b1", "ros1", frames=range(2))
+
+
 def test_sigterm_mid_replay_leaves_valid_output(tmp_path):
     out = tmp_path / "o.mcap"
     # the kornia reference detector takes ~1 s per frame here: 40 frames leave a wide window to interrupt in
