@@ -196,6 +196,7 @@ class BagReader:
         _check_signature(self._db3_file() if self.kind == "db3" else self._mcap_file() if self.kind == "mcap"
                          else self.path, self.kind)
         self.warnings: list[str] = []
+        self.damage: str | None = None  # what stopped the topic listing short (an .mcap cut before its channels)
         self._told: set[str] = set()
         self._salvaged: _Db3Salvage | None = None
         self.topics = self._topics()
@@ -222,8 +223,8 @@ class BagReader:
                             schemas[rec.id] = rec.name
                         elif isinstance(rec, Channel):
                             topics[rec.topic] = schemas.get(rec.schema_id, "")
-            except Exception:  # noqa: BLE001 - truncated/corrupt: keep what was read, messages() reports it
-                pass
+            except Exception as e:  # noqa: BLE001 - truncated/corrupt: keep what was read
+                self.damage = f"{type(e).__name__} after {len(topics)} topics"
             return topics
         from rosbags.highlevel import AnyReader
 
@@ -384,7 +385,8 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
     img_t = pick_topic(topics, IMAGE_TYPES, "image", image_topic)
     if img_t is None:
         listing = ", ".join(f"{t} [{m}]" for t, m in sorted(topics.items())) or "none"
-        raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}")
+        damage = f"; reading stopped at {reader.damage}: the file is damaged or cut short" if reader.damage else ""
+        raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}{damage}")
     return {"image": img_t, "camera_info": pick_topic(topics, ("sensor_msgs/msg/CameraInfo",), "info", info_topic),
             "ground_truth": pick_topic(topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)}
 

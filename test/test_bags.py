@@ -181,7 +181,9 @@ def test_a_bag_whose_content_is_not_its_extensions_format_is_named(bags, tmp_pat
              "db3_named.mcap": (next(bags["sqlite3"].glob("*.db3")).read_bytes(),
                                 "an SQLite rosbag2 file with a .mcap name; rename it to .db3"),
              "junk.mcap": (b"hello world", "not an MCAP file (it does not begin as one: b'hello world')"),
-             "empty.db3": (b"", "empty file")}
+             "empty.db3": (b"", "empty file"),
+             "cut.mcap": (mcap_file.read_bytes()[:200], "no sensor_msgs/Image or CompressedImage topic; the bag has: none; "
+                          "reading stopped at EndOfFile after 0 topics: the file is damaged or cut short")}
     for name, (data, says) in cases.items():
         (tmp_path / name).write_bytes(data)
         r = nmnet("replay", str(tmp_path / name), "--out", str(tmp_path / "o.mcap"))
