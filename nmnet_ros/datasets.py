@@ -208,6 +208,10 @@ class Sequence:
         """pairs.txt when present, else (i, i+g) for every gap g with both frames in ``frames``."""
         if self.pairs_file is not None:
             return list(self.pairs_file)
+        if frames is not None and (not len(frames) or frames.start < 0 or frames.stop > len(self)):
+            raise DatasetError(f"{self.root}: frames {frames.start}-{frames.stop - 1} "
+                               + ("are none (the first is after the last)" if not len(frames) else
+                                  f"are not all in the folder; it has frames 0-{len(self) - 1}"))
         frames = frames if frames is not None else range(len(self))
         fs = set(frames)
         return [(i, i + g) for g in gaps for i in frames if i + g in fs]

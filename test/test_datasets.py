@@ -27,6 +27,16 @@ def test_static_camera_pairs_are_excluded():
     assert select_pairs(seq, (1, 5)) == []
 
 
+def test_a_frame_range_outside_the_folder_is_named():
+    """'PATH:a-b' past the last frame (or with a > b) is an error naming the folder's frames, not an IndexError."""
+    seq = Sequence.load(data_dir("kitti-07"))
+    with pytest.raises(DatasetError, match="frames 157-999 are not all in the folder; it has frames 0-159"):
+        seq.pairs((1,), range(157, 1000))
+    with pytest.raises(DatasetError, match="frames 5-3 are none"):
+        seq.pairs((1,), range(5, 4))
+    assert seq.pairs((1,), range(157, 160)) == [(157, 158), (158, 159)]
+
+
 def test_pairs_txt_is_honoured(tmp_path):
     src = data_dir("strecha-entry-p10")
     dst = tmp_path / "entry"
