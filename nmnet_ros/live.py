@@ -103,7 +103,7 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
     node_proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.node", *args], env=env)
     rclpy.init()
     ts = typestore()
-    stats = {"published": 0, "results": 0, "latency_ms": []}
+    stats: dict = {"published": 0, "results": 0, "latency_ms": [], "diagnostics": {}}
     sent_at: dict[int, float] = {}
     answered: set[int] = set()  # stamps the node published matches for
     try:
@@ -126,6 +126,14 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
                               ("relative_pose", "geometry_msgs/msg/PoseWithCovarianceStamped")):
             player.create_subscription(_rclpy_type(mtype), f"/{NODE_NAME}/{suffix}", record(f"/{NODE_NAME}/{suffix}", mtype),
                                        QoSProfile(depth=100))
+
+        def diagnostics(msg) -> None:  # the node's counters, as of its latest report (1 Hz)
+            for st in msg.status:
+                if st.hardware_id == f"/{NODE_NAME}":
+                    stats["diagnostics"] = {kv.key: kv.value for kv in st.values}
+
+        player.create_subscription(_rclpy_type("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", diagnostics,
+                                   QoSProfile(depth=10))
         t_end = time.monotonic() + 60
         while pub_img.get_subscription_count() == 0 and time.monotonic() < t_end:
             if node_proc.poll() is not None:

@@ -436,11 +436,18 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
     processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result
     scores = score_recording(args.out, reader, gt_tum, (topics or {}).get("ground_truth"))
+    diag = stats["diagnostics"]  # the node's last /diagnostics: why frames were dropped
+    warnings = {k.removeprefix("warn_"): int(v) for k, v in diag.items() if k.startswith("warn_")}
     summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,
+               "received": int(diag.get("frames_received", -1)), "dropped_busy": int(diag.get("frames_dropped", -1)),
                "fps": processed / wall, "latency_p50_ms": float(np.percentile(lat, 50)),
-               "latency_p90_ms": float(np.percentile(lat, 90)), **scores, "parameters": params}
-    print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped, "
+               "latency_p90_ms": float(np.percentile(lat, 90)), **scores, "warnings": warnings, "parameters": params}
+    why = (f" ({summary['dropped_busy']} replaced by a newer frame while the node was busy, "
+           f"{summary['frames'] - summary['received']} not received)" if diag and summary["dropped"] else "")
+    print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped{why}, "
           f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
+    if warnings:  # frames the node skipped for bad input are among the dropped ones too
+        print("   the node's warnings (its /diagnostics): " + ", ".join(f"{k} {v}" for k, v in sorted(warnings.items())))
     if summary["median_rot_deg"] is not None:
         print(f"   vs ground truth ({summary['scored_pairs']} pairs): median rotation error {summary['median_rot_deg']:.3f} deg, "
               f"translation {summary['median_trans_deg']:.2f} deg, AUC@5/10/20 {summary['auc5']:.1f} / {summary['auc10']:.1f} / "

@@ -430,6 +430,14 @@ def test_replay_skips_frames_stamped_before_zero_and_still_writes_its_file(raw_b
     s = json.loads((tmp_path / "s.json").read_text())
     assert s["frames"] == 6 and s["processed"] == 4 and s["warnings"] == {"negative_stamp": 2}, s
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3
+    # live, the node skips them and its /diagnostics count reaches the summary: the 2 "dropped" are explained
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "l.mcap"), "--json", str(tmp_path / "l.json"), "--no-progress",
+              "--live", "--rate", "0.5")
+    assert r.returncode == 0 and "the node's warnings (its /diagnostics): negative_stamp 2" in r.stdout, r.stdout + r.stderr
+    s = json.loads((tmp_path / "l.json").read_text())
+    assert s["processed"] == 4 and s["dropped"] == 2 and s["warnings"]["negative_stamp"] == 2, s
+    assert s["received"] == 6 and s["dropped_busy"] == 0, s  # neither lost on the way nor replaced while busy
+    assert read_output(tmp_path / "l.mcap")["/nmnet_node/relative_pose"] == 3
 
 
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
