@@ -22,9 +22,21 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+def version() -> str:
+    """``nmnet_ros X.Y.Z``, the installed package's version (setup.py and package.xml carry the same, tested)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return f"nmnet_ros {installed('nmnet_ros')}"
+    except PackageNotFoundError:
+        return "nmnet_ros (not installed: run from a source tree)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Parser with every subcommand's options (modules imported lazily per subcommand)."""
     parser = argparse.ArgumentParser(prog="nmnet", description="NM-Net visual-odometry front end: tools.")
+    parser.add_argument("--version", action="version", version=version())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -77,13 +89,21 @@ def node_help(width: int = 100) -> str:
 
 
 def node_main(args: list[str] | None = None) -> int:
-    """Entry point of the ``nmnet_node`` console script: the node, its ``--help``, or one line saying which ROS
-    package is missing."""
+    """Entry point of the ``nmnet_node`` console script: the node, its ``--help`` or ``--version``, or one line
+    saying which ROS package is missing or that an argument came before ``--ros-args``."""
     argv = sys.argv if args is None else args
     own = argv[1:argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]  # the arguments before ROS's
     if "-h" in own or "--help" in own:
         print(node_help(), end="")
         return 0
+    if "--version" in own:
+        print(version())
+        return 0
+    if own:  # rclpy would ignore them and start the node with the defaults
+        print(f"nmnet_node: error: unrecognized arguments: {' '.join(own)}; node settings go after --ros-args, e.g. "
+              "nmnet_node --ros-args -p max_keypoints:=1000 -r image:=/camera/image_raw (see nmnet_node --help)",
+              file=sys.stderr)
+        return 2
     try:
         from .node import main
     except ImportError as e:

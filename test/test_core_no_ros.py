@@ -108,6 +108,23 @@ def test_node_help_lists_topics_service_and_every_parameter_without_ros(tmp_path
     assert ros_value.returncode == 2 and "'rclpy' is missing" in ros_value.stderr  # went on to start the node
 
 
+def test_version_is_the_packages_and_stray_node_arguments_are_refused(tmp_path):
+    """`nmnet --version` and `nmnet_node --version` print the installed version, which setup.py and package.xml
+    both carry; an argument before --ros-args (rclpy would ignore it and start with the defaults) is refused."""
+    import re
+
+    xml = re.search(r"<version>(.+)</version>", (ROOT / "package.xml").read_text()).group(1)
+    assert f'version="{xml}"' in (ROOT / "setup.py").read_text()
+    tool = subprocess.run([sys.executable, "-m", "nmnet_ros.cli", "--version"], capture_output=True, text=True)
+    node = _without_ros("from nmnet_ros.cli import node_main\nsys.exit(node_main(['nmnet_node', '--version']))", tmp_path)
+    for done in (tool, node):
+        assert done.returncode == 0 and done.stdout == f"nmnet_ros {xml}\n", done.stdout + done.stderr
+    stray = _without_ros("from nmnet_ros.cli import node_main\n"
+                         "sys.exit(node_main(['nmnet_node', '-p', 'max_keypoints:=1000']))", tmp_path)
+    assert stray.returncode == 2 and stray.stderr.startswith(
+        "nmnet_node: error: unrecognized arguments: -p max_keypoints:=1000; node settings go after --ros-args"), stray.stderr
+
+
 def test_demo_runs_its_offline_part_without_ros(tmp_path):
     """The offline tools need no ROS: `nmnet demo` skips the live part with the note and replays the sample
     bag offline, next to the SIFT baseline; its output holds the node's topics."""
