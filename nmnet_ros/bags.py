@@ -103,7 +103,7 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
     if ros1 and out.suffix != ".bag":
         raise BagError(f"{out}: a ROS 1 bag is one file and is read by its .bag extension; name it {out.name}.bag")
     ts = typestore(ros1)
-    idx = list(frames if frames is not None else range(len(seq)))
+    idx = list(seq.frames(frames))
     if ros1:
         from rosbags.rosbag1 import Writer as Writer1
 

@@ -204,16 +204,22 @@ class Sequence:
                 raise DatasetError(f"{self.root / 'groundtruth.txt'}: no pose for frame {k} ({self.paths[k].name})")
         return relative_pose(self.poses[i], self.poses[j])
 
-    def pairs(self, gaps: tuple[int, ...] = (1,), frames: range | None = None) -> list[tuple[int, int]]:
-        """pairs.txt when present, else (i, i+g) for every gap g with both frames in ``frames``."""
-        if self.pairs_file is not None:
-            return list(self.pairs_file)
-        if frames is not None and (not len(frames) or frames.start < 0 or frames.stop > len(self)):
+    def frames(self, frames: range | None = None) -> range:
+        """``frames`` (a 'PATH:a-b' range), checked against the folder; all of them for None."""
+        if frames is None:
+            return range(len(self))
+        if not len(frames) or frames.start < 0 or frames.stop > len(self):
             raise DatasetError(f"{self.root}: frames {frames.start}-{frames.stop - 1} "
                                + ("are none (the first is after the last)" if not len(frames) else
                                   f"are not all in the folder; it has frames 0-{len(self) - 1}"))
-        frames = frames if frames is not None else range(len(self))
-        fs = set(frames)
+        return frames
+
+    def pairs(self, gaps: tuple[int, ...] = (1,), frames: range | None = None) -> list[tuple[int, int]]:
+        """pairs.txt's pairs with both frames in ``frames`` when it is present, else (i, i+g) for every gap g with
+        both frames in ``frames`` (default: all)."""
+        fs = set(frames := self.frames(frames))
+        if self.pairs_file is not None:
+            return [(i, j) for i, j in self.pairs_file if i in fs and j in fs]
         return [(i, i + g) for g in gaps for i in frames if i + g in fs]
 
 

@@ -33,7 +33,7 @@ from .train import parse_gaps
 
 def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, stride: int = 1,
                     max_pairs: int | None = None) -> list[PairData]:
-    """Pairs of every 'PATH[:a-b]' (pairs.txt decides when present)."""
+    """Pairs of every 'PATH[:a-b]' (pairs.txt's, within a-b, when present)."""
     pairs = []
     for spec in specs:
         path, frames = parse_seq_spec(spec)

@@ -27,8 +27,14 @@ def test_static_camera_pairs_are_excluded():
     assert select_pairs(seq, (1, 5)) == []
 
 
-def test_a_frame_range_outside_the_folder_is_named():
-    """'PATH:a-b' past the last frame (or with a > b) is an error naming the folder's frames, not an IndexError."""
+def test_a_frame_range_outside_the_folder_is_named(tmp_path):
+    """'PATH:a-b' past the last frame (or with a > b) is an error naming the folder's frames, not an IndexError
+    (eval, train; make-bag before it writes anything)."""
+    from nmnet_ros.bags import make_bag
+
+    with pytest.raises(DatasetError, match="frames 157-999 are not all in the folder; it has frames 0-159"):
+        make_bag(data_dir("kitti-07"), tmp_path / "b", "mcap", frames=range(157, 1000))
+    assert not (tmp_path / "b").exists()
     seq = Sequence.load(data_dir("kitti-07"))
     with pytest.raises(DatasetError, match="frames 157-999 are not all in the folder; it has frames 0-159"):
         seq.pairs((1,), range(157, 1000))
@@ -44,6 +50,7 @@ def test_pairs_txt_is_honoured(tmp_path):
     (dst / "pairs.txt").write_text("# i j\n0 3\n2 5\n")
     seq = Sequence.load(dst)
     assert seq.pairs((1,)) == [(0, 3), (2, 5)]
+    assert seq.pairs((1,), range(0, 4)) == [(0, 3)]  # 'PATH:0-3' keeps pairs.txt's pairs within those frames
     (dst / "pairs.txt").write_text("0 99\n")
     with pytest.raises(DatasetError, match="pairs.txt.*out of range"):
         Sequence.load(dst)
