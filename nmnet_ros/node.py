@@ -34,10 +34,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 from std_srvs.srv import Trigger
 
@@ -143,8 +144,9 @@ class NMNetNode(Node):
         # a topic named like image_proc's rectified output: say once if its camera_info is the distorted raw one
         self._rect_hint_due = bool(re.search(r"(^|/|_)rect", self._image_sub.topic_name))
         # camera_info is small: best effort matches publishers of either kind and loses nothing here
-        self.create_subscription(CameraInfo, "camera_info", self._on_info,
-                                 QoSProfile(depth=10) if p["qos"] == "reliable" else qos_profile_sensor_data)
+        self._info_sub = self.create_subscription(CameraInfo, "camera_info", self._on_info,
+                                                  QoSProfile(depth=10) if p["qos"] == "reliable" else qos_profile_sensor_data)
+        self._latched_info_sub = None  # a transient-local one, made when a latched camera_info publisher shows up
         self.pub_matches = self.create_publisher(PointCloud2, "~/matches", 10)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "~/relative_pose", 10)
         self.pub_debug = self.create_publisher(Image, "~/debug_image", 2)
@@ -204,8 +206,32 @@ class NMNetNode(Node):
         self._image_sub = self.create_subscription(self._image_type, self._image_topic, self._on_image, qos)
         self.image_reliable = reliable
 
+    def _follow_latched_info(self) -> None:
+        """A camera_info published once, latched (transient local; a static calibration): a volatile subscription
+        never gets what was sent before the node started, so subscribe transient local too, as the publisher offers,
+        until the calibration is in (later ones reach the first subscription too)."""
+        if self._latched_info_sub is not None and self.camera is not None:
+            self.destroy_subscription(self._latched_info_sub)
+            self._latched_info_sub = None
+        if self._latched_info_sub is not None or self.camera is not None:
+            return
+        latched = [i.qos_profile for i in self.get_publishers_info_by_topic(self._info_sub.topic_name)
+                   if i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL]
+        if not latched:
+            return
+        reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in latched)
+        qos = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT)
+        self._latched_info_sub = self.create_subscription(  # volatile publishers beside it: not for it, no warning
+            CameraInfo, self._info_sub.topic_name, self._on_info, qos,
+            event_callbacks=SubscriptionEventCallbacks(incompatible_qos=lambda _: None))
+        self.get_logger().info(f"{self._info_sub.topic_name} is published latched (transient local): subscribing so "
+                               "too, for the calibration sent before the node started")
+
     def _tick(self) -> None:
-        """Every second: follow the image publishers' reliability (qos auto), say when frames stop, diagnostics."""
+        """Every second: follow the image publishers' reliability (qos auto) and a latched camera_info, say when
+        frames stop, diagnostics."""
+        self._follow_latched_info()
         topic = self._image_sub.topic_name
         offers = [i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in self.get_publishers_info_by_topic(topic)]
         want_reliable = follow_reliability(offers)

@@ -353,6 +353,29 @@ def test_a_reliable_camera_with_large_raw_frames_is_followed(ros, tmp_path):
     assert "subscribing reliable" in node.output()
 
 
+def test_a_calibration_published_once_latched_before_the_node_started_is_received(ros, tmp_path):
+    """A static calibration published once on a transient-local (latched) topic before the node subscribed: a
+    volatile subscription never sees it, so the node follows the publisher's durability, gets it, and processes."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import CameraInfo
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    with node_and_peer(ros, tmp_path, []) as (node, peer):
+        latched = peer.node.create_publisher(CameraInfo, "camera_info", QoSProfile(
+            depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE))
+        latched.publish(kitti_info(seq))  # once, while the node is still starting
+        peer.wait_connected()
+        for n in range(20):  # frames before the calibration arrives are skipped (no_camera_info): send until related
+            peer.pub_img.publish(image_msg(seq.image(80 + n % 2), 1.0 + n))
+            if peer.wait_result_for(1.0 + n, timeout=2.0):
+                break
+        else:
+            raise AssertionError("no frame was related: the latched camera_info never arrived")
+    out = node.output()
+    assert "camera_info is published latched (transient local): subscribing so too" in out, out
+    assert "incompatible" not in out, out  # the peer's volatile camera_info publisher is no concern of that subscription
+
+
 def test_a_camera_the_node_cannot_match_is_explained(ros, tmp_path):
     """A reliable subscription (qos:=reliable) never matches a best-effort camera: the node says so and why."""
     seq = Sequence.load(data_dir("kitti-07"))
