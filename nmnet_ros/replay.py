@@ -439,7 +439,8 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     diag = stats["diagnostics"]  # the node's last /diagnostics: why frames were dropped
     warnings = {k.removeprefix("warn_"): int(v) for k, v in diag.items() if k.startswith("warn_")}
     summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,
-               "received": int(diag.get("frames_received", -1)), "dropped_busy": int(diag.get("frames_dropped", -1)),
+               "received": int(diag["frames_received"]) if diag else None,  # None: no report came from the node
+               "dropped_busy": int(diag["frames_dropped"]) if diag else None,
                "fps": processed / wall, "latency_p50_ms": float(np.percentile(lat, 50)),
                "latency_p90_ms": float(np.percentile(lat, 90)), **scores, "warnings": warnings, "parameters": params}
     why = (f" ({summary['dropped_busy']} replaced by a newer frame while the node was busy, "
