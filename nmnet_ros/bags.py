@@ -148,15 +148,16 @@ class RawMessage:
     log_time_ns: int
 
 
-def _bag_kind(path: Path) -> str:
+def _bag_file(path: Path) -> tuple[str, Path]:
+    """The bag's kind (mcap, db3, bag) and the file to read: ``path`` itself, or a ROS 2 bag directory's first
+    storage file."""
     if path.is_dir():
-        if list(path.glob("*.mcap")):
-            return "mcap"
-        if list(path.glob("*.db3")):
-            return "db3"
+        for kind in ("mcap", "db3"):
+            if files := sorted(path.glob(f"*.{kind}")):
+                return kind, files[0]
         raise BagError(f"{path}: directory holds no .mcap or .db3 file")
     if path.suffix in (".mcap", ".db3", ".bag"):
-        return path.suffix[1:]
+        return path.suffix[1:], path
     raise BagError(f"{path}: unknown bag type; expected a .bag, .db3 or .mcap file or a ROS 2 bag directory")
 
 
@@ -192,9 +193,8 @@ class BagReader:
         self.path = Path(path)
         if not self.path.exists():
             raise BagError(f"{self.path}: no such bag")
-        self.kind = _bag_kind(self.path)
-        _check_signature(self._db3_file() if self.kind == "db3" else self._mcap_file() if self.kind == "mcap"
-                         else self.path, self.kind)
+        self.kind, self.file = _bag_file(self.path)
+        _check_signature(self.file, self.kind)
         self.warnings: list[str] = []
         self.damage: str | None = None  # what stopped the topic listing short (an .mcap cut before its channels)
         self._told: set[str] = set()
@@ -207,9 +207,6 @@ class BagReader:
         self._told.update(new)
         return new
 
-    def _mcap_file(self) -> Path:
-        return sorted(self.path.glob("*.mcap"))[0] if self.path.is_dir() else self.path
-
     def _topics(self) -> dict[str, str]:
         if self.kind == "mcap":
             from mcap.records import Channel, Schema
@@ -217,7 +214,7 @@ class BagReader:
 
             schemas, topics = {}, {}
             try:
-                with open(self._mcap_file(), "rb") as fh:
+                with open(self.file, "rb") as fh:
                     for rec in StreamReader(fh, skip_magic=False).records:
                         if isinstance(rec, Schema):
                             schemas[rec.id] = rec.name
@@ -233,14 +230,11 @@ class BagReader:
                 return {c.topic: c.msgtype for c in r.connections}
         except Exception as e:  # noqa: BLE001 - rosbags raises several types
             if self.kind == "db3":
-                self._salvaged = _Db3Salvage(self._db3_file(), e)
-                self.warnings.append(f"{self._db3_file()}: damaged or truncated ({e}); reading what is readable")
+                self._salvaged = _Db3Salvage(self.file, e)
+                self.warnings.append(f"{self.file}: damaged or truncated ({e}); reading what is readable")
                 return self._salvaged.topics
             raise BagError(f"{self.path}: cannot open bag ({type(e).__name__}: {e}); a ROS 1 bag cut short has lost "
                            "its index: rebuild it with `rosbag reindex` (ROS 1 tools), then replay it") from e
-
-    def _db3_file(self) -> Path:
-        return sorted(self.path.glob("*.db3"))[0] if self.path.is_dir() else self.path
 
     def messages(self, topics: set[str]) -> Iterator[RawMessage]:
         """Deserialised messages on ``topics``."""
@@ -268,7 +262,7 @@ class BagReader:
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
         n = 0
-        with open(self._mcap_file(), "rb") as fh:
+        with open(self.file, "rb") as fh:
             try:
                 for rec in StreamReader(fh, skip_magic=False).records:
                     if isinstance(rec, Schema):
@@ -286,7 +280,7 @@ class BagReader:
                         yield RawMessage(ch.topic, mtype, ts.deserialize_cdr(rec.data, mtype), rec.log_time)
                         n += 1
             except Exception as e:  # noqa: BLE001 - EndOfFile, bad CRC, ...
-                self.warnings.append(f"{self._mcap_file()}: truncated or damaged after {n} messages "
+                self.warnings.append(f"{self.file}: truncated or damaged after {n} messages "
                                      f"({type(e).__name__}); the readable part was used")
 
 
