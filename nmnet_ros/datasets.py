@@ -109,23 +109,27 @@ class Trajectory:
         before = (after - 1).clip(0)
         return np.where(np.abs(self.stamps[before] - s) <= np.abs(self.stamps[after] - s), before, after)
 
+    def lookup(self, stamps: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """Per stamp, the nearest pose's index and whether it lies within half the spacing: a frame before, after
+        or in a gap of the ground truth has no pose, rather than one of another time."""
+        s = np.atleast_1d(np.asarray(stamps, np.float64))
+        i = self.nearest(s)
+        return i, np.abs(self.stamps[i] - s) <= 0.5 * self.spacing + 1e-6
+
     def at(self, stamp: float) -> np.ndarray | None:
-        """The pose at ``stamp`` (4x4 T_WC), or None when the nearest is more than half the spacing away: a
-        frame before, after or in a gap of the ground truth is not scored against a pose of another time."""
-        i = int(self.nearest(stamp)[0])
-        return self.poses[i] if abs(self.stamps[i] - stamp) <= 0.5 * self.spacing + 1e-6 else None
+        """The pose at ``stamp`` (4x4 T_WC), or None where :meth:`lookup` finds none."""
+        i, ok = self.lookup(stamp)
+        return self.poses[i[0]] if ok[0] else None
 
 
 def _poses_at(gt: Trajectory, stamps: np.ndarray, root: Path) -> np.ndarray:
-    """Each image's pose by its stamp (:meth:`Trajectory.at`), NaN where the ground truth has none: a file that
+    """Each image's pose by its stamp (:meth:`Trajectory.lookup`), NaN where the ground truth has none: a file that
     does not cover every image (a tracker that lost the camera) leaves those frames out, instead of giving them
     a pose of another time."""
+    i, ok = gt.lookup(stamps)
     poses = np.full((len(stamps), 4, 4), np.nan)
-    for n, stamp in enumerate(stamps):
-        T = gt.at(stamp)
-        if T is not None:
-            poses[n] = T
-    if np.isnan(poses[:, 3, 3]).all():
+    poses[ok] = gt.poses[i[ok]]
+    if not ok.any():
         raise DatasetError(f"{root / 'groundtruth.txt'}: no pose at any image's stamp (stamps {gt.stamps[0]:.6f} .. "
                            f"{gt.stamps[-1]:.6f}, images {stamps.min():.6f} .. {stamps.max():.6f}); its timestamps must be "
                            "those of images.txt")
