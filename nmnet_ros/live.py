@@ -24,10 +24,10 @@ from .bags import BagError, BagReader, choose_topics, pick_topic, pose_from_msg,
 from .caminfo import info_fields
 from .datasets import Trajectory
 from .dds import LARGE_FRAMES_PROFILE
-from .geometry import Camera, pose_auc
+from .geometry import Camera
 from .mcap_out import McapOutput
 from .posemsg import estimate_of_message
-from .replay import frame_error
+from .replay import error_summary, frame_error
 
 NODE_NAME = "nmnet_node"
 
@@ -221,8 +221,4 @@ def score_recording(path: Path, source: BagReader, gt_tum: Trajectory | None = N
         status, pose = estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance)
         if (err := frame_error(status, pose, truth(t_prev), truth(t_cur))) is not None:
             errs.append(err)
-    e = np.array(errs) if errs else np.zeros((0, 2))
-    aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
-    return {"median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,
-            "median_trans_deg": float(np.median(e[:, 1])) if len(e) else None,
-            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2], "scored_pairs": len(e)}
+    return error_summary(errs)

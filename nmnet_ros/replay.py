@@ -59,6 +59,16 @@ def frame_error(status: str, pose: PoseEstimate | None, T_prev: np.ndarray | Non
     return pose_error_deg(pose, R, t)
 
 
+def error_summary(errors: list[tuple[float, float]]) -> dict:
+    """Median rotation / translation errors, pose AUC@5/10/20 (percent) and the pair count of (rot, trans) errors
+    in degrees: what the offline replay and the live scoring report alike."""
+    e = np.array(errors) if errors else np.zeros((0, 2))
+    aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
+    return {"median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,
+            "median_trans_deg": float(np.median(e[:, 1])) if len(e) else None,
+            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2], "scored_pairs": len(e)}
+
+
 class Notes:
     """A pass's per-frame warnings, by the kinds the node counts in diagnostics (``warn_<kind>``): each kind is
     said in full the first ``shown`` times, then only counted, and the counts are totalled at the end, so a bag
@@ -95,8 +105,6 @@ class Run:
 
     def summary(self, frames: int, dropped: int = 0) -> dict:
         """The summary JSON: counts, rate, median errors, pose AUCs, selections per frame, statuses."""
-        e = np.array(self.errors) if self.errors else np.zeros((0, 2))
-        aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
         matches = [len(r.k0) for r in self.results if r.status not in RESTARTS]
         sel = [r.num_selected for r in self.results if r.status not in RESTARTS]
         statuses: dict[str, int] = {}
@@ -104,11 +112,8 @@ class Run:
             statuses[r.status] = statuses.get(r.status, 0) + 1
         return {
             "frames": frames, "processed": len(self.results), "dropped": dropped,
-            "fps": len(self.results) / self.seconds if self.seconds else 0.0,
-            "median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,
-            "median_trans_deg": float(np.median(e[:, 1])) if len(e) else None,
-            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2],
-            "scored_pairs": len(e), "matches_per_frame": float(np.mean(matches)) if matches else 0.0,
+            "fps": len(self.results) / self.seconds if self.seconds else 0.0, **error_summary(self.errors),
+            "matches_per_frame": float(np.mean(matches)) if matches else 0.0,
             "selected_per_frame": float(np.mean(sel)) if sel else 0.0, "status": statuses, "warnings": dict(self.warnings),
         }
 
@@ -272,6 +277,11 @@ def print_summary(s: dict, name: str) -> None:
     line = f"{name}: {s['processed']}/{s['frames']} frames at {s['fps']:.2f} fps, {s['matches_per_frame']:.0f} matches and " \
            f"{s['selected_per_frame']:.0f} selected per frame"
     print(line)
+    print_scores(s)
+
+
+def print_scores(s: dict) -> None:
+    """The summary's errors against ground truth (offline and live alike), when any pair was scored."""
     if s["median_rot_deg"] is not None:
         print(f"   vs ground truth ({s['scored_pairs']} pairs): median rotation error {s['median_rot_deg']:.3f} deg, translation "
               f"{s['median_trans_deg']:.2f} deg, AUC@5/10/20 {s['auc5']:.1f} / {s['auc10']:.1f} / {s['auc20']:.1f}")
@@ -449,10 +459,7 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
           f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
     if warnings:  # frames the node skipped for bad input are among the dropped ones too
         print("   the node's warnings (its /diagnostics): " + ", ".join(f"{k} {v}" for k, v in sorted(warnings.items())))
-    if summary["median_rot_deg"] is not None:
-        print(f"   vs ground truth ({summary['scored_pairs']} pairs): median rotation error {summary['median_rot_deg']:.3f} deg, "
-              f"translation {summary['median_trans_deg']:.2f} deg, AUC@5/10/20 {summary['auc5']:.1f} / {summary['auc10']:.1f} / "
-              f"{summary['auc20']:.1f}")
+    print_scores(summary)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
         args.json.write_text(summary_json(summary))
