@@ -314,7 +314,7 @@ def raw_bag(tmp_path_factory):
     return path
 
 
-def test_a_refused_camera_info_is_named_for_every_frame_it_stops(raw_bag, tmp_path):
+def test_a_refused_camera_info_is_named_then_counted_for_the_frames_it_stops(raw_bag, tmp_path):
     def fov(topic, msg):
         if topic.endswith("camera_info"):
             msg.distortion_model = "fov"
@@ -322,11 +322,39 @@ def test_a_refused_camera_info_is_named_for_every_frame_it_stops(raw_bag, tmp_pa
 
     bag = tmp_path / "fov"
     rewrite_bag(raw_bag, bag, fov)
-    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
+    r, s = replay_json(bag, tmp_path)
     out = r.stdout + r.stderr
     assert out.count("skipped, camera_info refused: distortion model 'fov' is not supported") == 3, out  # then counted
     assert "no camera_info yet" not in out and "bad_camera_info: 6 frames in all" in out, out
-    assert json.loads((tmp_path / "s.json").read_text())["warnings"] == {"bad_camera_info": 6}
+    assert s["warnings"] == {"bad_camera_info": 6}, s
+
+
+def restamp_images(src: Path, dst: Path, stamp) -> None:
+    """Copy a ROS 2 bag with each image's header stamp replaced by ``stamp(n, old)`` (n counts the images from 1)."""
+    n = [0]
+
+    def edit(topic, msg):
+        if msg.__class__.__name__.endswith("Image"):
+            n[0] += 1
+            msg.header.stamp = stamp(n[0], msg.header.stamp)
+        return msg
+
+    rewrite_bag(src, dst, edit)
+
+
+def shifted_from(first: int, seconds: int):
+    """A :func:`restamp_images` rule: images ``first`` and later moved by ``seconds``."""
+    from rosbags.typesys.stores.ros2_humble import builtin_interfaces__msg__Time as Time
+
+    return lambda n, t: Time(sec=t.sec + seconds, nanosec=t.nanosec) if n >= first else t
+
+
+def replay_json(bag: Path, tmp_path: Path, *extra: str, name: str = "o") -> tuple[subprocess.CompletedProcess, dict | None]:
+    """``nmnet replay BAG --out NAME.mcap --json NAME.json`` and its summary (None when none was written)."""
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / f"{name}.mcap"), "--json", str(tmp_path / f"{name}.json"),
+              "--no-progress", *extra)
+    summary = tmp_path / f"{name}.json"
+    return r, json.loads(summary.read_text()) if summary.exists() else None
 
 
 def test_a_driver_that_never_stamps_is_named_a_few_times_then_counted(raw_bag, tmp_path):
@@ -334,20 +362,13 @@ def test_a_driver_that_never_stamps_is_named_a_few_times_then_counted(raw_bag, t
     for the first three and then counts, instead of a line per frame of the bag."""
     from rosbags.typesys.stores.ros2_humble import builtin_interfaces__msg__Time as Time
 
-    def unstamped(topic, msg):
-        if msg.__class__.__name__.endswith("Image"):
-            msg.header.stamp = Time(sec=0, nanosec=0)
-        return msg
-
-    bag = tmp_path / "unstamped"
-    rewrite_bag(raw_bag, bag, unstamped)
-    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
+    restamp_images(raw_bag, tmp_path / "unstamped", lambda n, t: Time(sec=0, nanosec=0))
+    r, s = replay_json(tmp_path / "unstamped", tmp_path)
     assert r.returncode == 0, r.stderr
     out = r.stdout + r.stderr
     assert out.count("does the camera driver stamp its frames?") == 3, out
     assert out.count("(further 'duplicate_stamp' frames are counted, not named)") == 1, out
     assert "duplicate_stamp: 5 frames in all" in out, out
-    s = json.loads((tmp_path / "s.json").read_text())
     assert s["processed"] == 1 and s["warnings"] == {"duplicate_stamp": 5}, s
 
 
@@ -356,23 +377,16 @@ def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag
     and named, as the node skips it; the next frame in order is related to the last one taken."""
     stamps = []
 
-    def restamp(topic, msg):
-        if msg.__class__.__name__.endswith("Image"):
-            stamps.append(msg.header.stamp)
-            if len(stamps) == 4:
-                msg.header.stamp = stamps[2]  # the third frame's stamp again
-            elif len(stamps) == 5:
-                msg.header.stamp = stamps[1]  # 0.1 s before the last frame taken
-        return msg
+    def restamp(n, t):
+        stamps.append(t)
+        return stamps[2] if n == 4 else stamps[1] if n == 5 else t  # the third frame's stamp again; 0.1 s before it
 
-    bag = tmp_path / "restamped"
-    rewrite_bag(raw_bag, bag, restamp)
-    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
+    restamp_images(raw_bag, tmp_path / "restamped", restamp)
+    r, s = replay_json(tmp_path / "restamped", tmp_path)
     assert r.returncode == 0, r.stderr
     out = r.stdout + r.stderr
     assert out.count("(duplicate_stamp): skipped (as the node does)") == 1, out
     assert out.count("(out_of_order_stamp): skipped (as the node does)") == 1, out
-    s = json.loads((tmp_path / "s.json").read_text())
     assert s["frames"] == 6 and s["processed"] == 4 and s["median_trans_deg"] < 2.0, s
     assert s["warnings"] == {"duplicate_stamp": 1, "out_of_order_stamp": 1}, s
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3  # one per processed frame after the first
@@ -381,25 +395,12 @@ def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag
 def test_replay_restarts_the_chain_at_a_frame_stamped_far_back_as_the_node_does(raw_bag, tmp_path):
     """A frame more than time_jump_s before the one before (a bag recorded in a loop) is kept and starts a new
     chain: it gets no relative pose; the frame after it is related to it again."""
-    from rosbags.typesys.stores.ros2_humble import builtin_interfaces__msg__Time as Time
-
     from nmnet_ros.posemsg import estimate_of_message
 
-    n = [0]
-
-    def loop(topic, msg):
-        if msg.__class__.__name__.endswith("Image"):
-            n[0] += 1
-            if n[0] >= 5:  # the last two frames, 3 s earlier
-                msg.header.stamp = Time(sec=msg.header.stamp.sec - 3, nanosec=msg.header.stamp.nanosec)
-        return msg
-
-    bag = tmp_path / "looped"
-    rewrite_bag(raw_bag, bag, loop)
-    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
+    restamp_images(raw_bag, tmp_path / "looped", shifted_from(5, -3))  # the last two frames, 3 s earlier
+    r, s = replay_json(tmp_path / "looped", tmp_path)
     assert r.returncode == 0, r.stderr
     assert (r.stdout + r.stderr).count("restarting from this frame (as the node does)") == 1, r.stdout + r.stderr
-    s = json.loads((tmp_path / "s.json").read_text())
     assert s["processed"] == 6 and s["median_trans_deg"] < 2.0, s
     status = []
     for m in BagReader(tmp_path / "o.mcap").messages({"/nmnet_node/relative_pose"}):
@@ -411,33 +412,19 @@ def test_replay_restarts_the_chain_at_a_frame_stamped_far_back_as_the_node_does(
 def test_replay_skips_frames_stamped_before_zero_and_still_writes_its_file(raw_bag, tmp_path):
     """A negative stamp (a bag restamped too far back) is no ROS time and cannot be logged in an .mcap: such
     frames are skipped and named, as the node skips them, and the replay ends with a readable file."""
-    from rosbags.typesys.stores.ros2_humble import builtin_interfaces__msg__Time as Time
-
-    n = [0]
-
-    def back(topic, msg):
-        if msg.__class__.__name__.endswith("Image"):
-            n[0] += 1
-            if n[0] >= 5:  # the last two frames, 10 s earlier: before 0 on this sample
-                msg.header.stamp = Time(sec=msg.header.stamp.sec - 10, nanosec=msg.header.stamp.nanosec)
-        return msg
-
     bag = tmp_path / "negative"
-    rewrite_bag(raw_bag, bag, back)
-    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "s.json"), "--no-progress")
+    restamp_images(raw_bag, bag, shifted_from(5, -10))  # the last two frames, 10 s earlier: before 0 on this sample
+    r, s = replay_json(bag, tmp_path)
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert (r.stdout + r.stderr).count("is negative: skipped (ROS time starts at 0") == 2, r.stdout + r.stderr
-    s = json.loads((tmp_path / "s.json").read_text())
     assert s["frames"] == 6 and s["processed"] == 4 and s["warnings"] == {"negative_stamp": 2}, s
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3
     # live, the node skips them and its /diagnostics count reaches the summary: the 2 "dropped" are explained
-    r = nmnet("replay", str(bag), "--out", str(tmp_path / "l.mcap"), "--json", str(tmp_path / "l.json"), "--no-progress",
-              "--live", "--rate", "0.5")
+    r, s = replay_json(bag, tmp_path, "--live", "--rate", "0.5", name="live")
     assert r.returncode == 0 and "the node's warnings (its /diagnostics): negative_stamp 2" in r.stdout, r.stdout + r.stderr
-    s = json.loads((tmp_path / "l.json").read_text())
     assert s["processed"] == 4 and s["dropped"] == 2 and s["warnings"]["negative_stamp"] == 2, s
     assert s["received"] == 6 and s["dropped_busy"] == 0, s  # neither lost on the way nor replaced while busy
-    assert read_output(tmp_path / "l.mcap")["/nmnet_node/relative_pose"] == 3
+    assert read_output(tmp_path / "live.mcap")["/nmnet_node/relative_pose"] == 3
 
 
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
