@@ -221,7 +221,8 @@ class Sequence:
     def pairs(self, gaps: tuple[int, ...] = (1,), frames: range | None = None) -> list[tuple[int, int]]:
         """pairs.txt's pairs with both frames in ``frames`` when it is present, else (i, i+g) for every gap g with
         both frames in ``frames`` (default: all)."""
-        fs = set(frames := self.frames(frames))
+        frames = self.frames(frames)
+        fs = set(frames)
         if self.pairs_file is not None:
             return [(i, j) for i, j in self.pairs_file if i in fs and j in fs]
         return [(i, i + g) for g in gaps for i in frames if i + g in fs]
