@@ -2,11 +2,12 @@
 
 Writing and reading go through ``rosbags`` (typestore, writers, AnyReader); .mcap input is read
 record by record with ``mcap``'s stream reader so that a truncated file still yields its
-readable part. No ROS installation is needed.
+readable part (every file of a ROS 2 bag split into several). No ROS installation is needed.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,6 +15,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import yaml
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import get_types_from_msg
 from rosbags.typesys.store import Typestore
@@ -148,27 +150,60 @@ class RawMessage:
     log_time_ns: int
 
 
-def _bag_file(path: Path) -> tuple[str, Path]:
-    """The bag's kind (mcap, db3, bag) and the file to read: ``path`` itself, or a ROS 2 bag directory's first
-    storage file."""
-    if path.is_dir():
-        for kind in ("mcap", "db3"):
-            if files := sorted(path.glob(f"*.{kind}")):
-                return kind, files[0]
-        raise BagError(f"{path}: directory holds no .mcap or .db3 file")
-    if path.suffix in (".mcap", ".db3", ".bag"):
-        return path.suffix[1:], path
-    raise BagError(f"{path}: unknown bag type; expected a .bag, .db3 or .mcap file or a ROS 2 bag directory")
+def _natural(path: Path) -> list:
+    """Sort key putting rosbag2's split files in recording order (bag_2 before bag_10)."""
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name)]
 
 
-SIGNATURES = {"mcap": b"\x89MCAP0\r\n", "db3": b"SQLite format 3\0", "bag": b"#ROSBAG V2.0"}  # how each begins
-KIND_NAMES = {"mcap": "an MCAP file", "db3": "an SQLite rosbag2 file", "bag": "a ROS 1 bag"}
+def _metadata(directory: Path) -> dict | None:
+    """A ROS 2 bag directory's metadata.yaml (rosbag2_bagfile_information); None when absent or unreadable."""
+    try:
+        info = yaml.safe_load((directory / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        return info if isinstance(info, dict) and isinstance(info.get("relative_file_paths"), list) else None
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        return None
+
+
+def _bag_files(path: Path) -> tuple[str, list[Path], list[str]]:
+    """The bag's kind (mcap, db3, bag), its storage files in recording order and what is amiss with them:
+    ``path`` itself, or every file of a ROS 2 bag directory (split by ``ros2 bag record --max-bag-size`` or
+    ``--max-bag-duration``; ``.zstd`` when recorded with ``--compression-mode file``) in its metadata.yaml's
+    order, else by name."""
+    if not path.is_dir():
+        if path.suffix in (".mcap", ".db3", ".bag"):
+            return path.suffix[1:], [path], []
+        raise BagError(f"{path}: unknown bag type; expected a .bag, .db3 or .mcap file or a ROS 2 bag directory")
+    for kind in ("mcap", "db3"):
+        found = sorted(path.glob(f"*.{kind}"), key=_natural)
+        zipped = sorted(path.glob(f"*.{kind}.zstd"), key=_natural)
+        if not found and not zipped:
+            continue
+        meta = _metadata(path)
+        if meta is None and not found:
+            raise BagError(f"{path}: its .{kind}.zstd files are compressed and metadata.yaml, which says how, is missing "
+                           f"or unreadable; decompress them (`zstd -d {zipped[0]}`) or restore metadata.yaml")
+        if meta is None:
+            note = [] if kind == "mcap" and len(found) == 1 else [
+                f"{path}: no readable metadata.yaml; its {len(found)} .{kind} file(s) are read directly, in name order "
+                f"(`ros2 bag reindex {path}` rewrites metadata.yaml)"]
+            return kind, found, note
+        listed = [path / name for name in meta["relative_file_paths"]]
+        missing = [f for f in listed if not f.exists()]
+        notes = [f"{f}: listed in {path / 'metadata.yaml'} but missing; the bag's other files are read" for f in missing]
+        return kind, [f for f in listed if f.exists()] or found or zipped, notes
+    raise BagError(f"{path}: directory holds no .mcap or .db3 file")
+
+
+SIGNATURES = {"mcap": b"\x89MCAP0\r\n", "db3": b"SQLite format 3\0", "bag": b"#ROSBAG V2.0",  # how each begins
+              "zstd": b"\x28\xb5\x2f\xfd"}
+KIND_NAMES = {"mcap": "an MCAP file", "db3": "an SQLite rosbag2 file", "bag": "a ROS 1 bag", "zstd": "a zstd-compressed file"}
 
 
 def _check_signature(path: Path, kind: str) -> None:
     """Refuse a file whose first bytes are not its extension's format (a renamed or wrongly saved file), naming
     the format it is, so the reader's own error (a decode error, 'file is not a database') is never all one gets.
     A truncated bag keeps its first bytes, so this holds for the damaged files the readers salvage too."""
+    kind = "zstd" if path.suffix == ".zstd" else kind
     with open(path, "rb") as fh:
         head = fh.read(max(map(len, SIGNATURES.values())))
     if head.startswith(SIGNATURES[kind]):
@@ -183,7 +218,7 @@ def _check_signature(path: Path, kind: str) -> None:
 
 
 class BagReader:
-    """Messages of a .bag/.db3/.mcap (file or ROS 2 directory) in log-time order.
+    """Messages of a .bag/.db3/.mcap (file or ROS 2 directory, every split file of it) in log-time order.
 
     ``warnings`` collects what went wrong on the way (e.g. a truncated file) so callers can
     report it; reading stops at the first unreadable record and keeps what came before.
@@ -193,12 +228,16 @@ class BagReader:
         self.path = Path(path)
         if not self.path.exists():
             raise BagError(f"{self.path}: no such bag")
-        self.kind, self.file = _bag_file(self.path)
-        _check_signature(self.file, self.kind)
-        self.warnings: list[str] = []
+        self.kind, self.files, self.warnings = _bag_files(self.path)
+        for f in self.files:
+            _check_signature(f, self.kind)
+        # .mcap files are streamed record by record (a truncated one yields its readable part); rosbags decompresses
+        meta = _metadata(self.path) if self.path.is_dir() else None
+        compressed = str((meta or {}).get("compression_mode") or "none").lower() != "none"  # file or message mode
+        self._streamed = self.kind == "mcap" and not compressed
         self.damage: str | None = None  # what stopped the topic listing short (an .mcap cut before its channels)
         self._told: set[str] = set()
-        self._salvaged: _Db3Salvage | None = None
+        self._salvaged: list[_Db3Salvage] = []
         self.topics = self._topics()
 
     def new_warnings(self) -> list[str]:
@@ -208,20 +247,22 @@ class BagReader:
         return new
 
     def _topics(self) -> dict[str, str]:
-        if self.kind == "mcap":
+        if self._streamed:
             from mcap.records import Channel, Schema
             from mcap.stream_reader import StreamReader
 
-            schemas, topics = {}, {}
-            try:
-                with open(self.file, "rb") as fh:
-                    for rec in StreamReader(fh, skip_magic=False).records:
-                        if isinstance(rec, Schema):
-                            schemas[rec.id] = rec.name
-                        elif isinstance(rec, Channel):
-                            topics[rec.topic] = schemas.get(rec.schema_id, "")
-            except Exception as e:  # noqa: BLE001 - truncated/corrupt: keep what was read
-                self.damage = f"{type(e).__name__} after {len(topics)} topics"
+            topics = {}
+            for file in self.files:
+                schemas: dict[int, str] = {}
+                try:
+                    with open(file, "rb") as fh:
+                        for rec in StreamReader(fh, skip_magic=False).records:
+                            if isinstance(rec, Schema):
+                                schemas[rec.id] = rec.name
+                            elif isinstance(rec, Channel):
+                                topics[rec.topic] = schemas.get(rec.schema_id, "")
+                except Exception as e:  # noqa: BLE001 - truncated/corrupt: keep what was read
+                    self.damage = self.damage or f"{type(e).__name__} after {len(topics)} topics"
             return topics
         from rosbags.highlevel import AnyReader
 
@@ -229,20 +270,24 @@ class BagReader:
             with AnyReader([self.path], default_typestore=typestore()) as r:
                 return {c.topic: c.msgtype for c in r.connections}
         except Exception as e:  # noqa: BLE001 - rosbags raises several types
-            if self.kind == "db3":
-                self._salvaged = _Db3Salvage(self.file, e)
-                self.warnings.append(f"{self.file}: damaged or truncated ({e}); reading what is readable")
-                return self._salvaged.topics
-            raise BagError(f"{self.path}: cannot open bag ({type(e).__name__}: {e}); a ROS 1 bag cut short has lost "
-                           "its index: rebuild it with `rosbag reindex` (ROS 1 tools), then replay it") from e
+            if self.kind == "db3" and self.files[0].suffix == ".db3":
+                self._salvaged = [_Db3Salvage(f, e) for f in self.files]
+                if self.path.is_file() or _metadata(self.path) is not None:
+                    self.warnings.append(f"{self.path}: damaged or truncated ({e}); reading what is readable")
+                return {t: m for s in self._salvaged for t, m in s.topics.items()}
+            hint = ("a ROS 1 bag cut short has lost its index: rebuild it with `rosbag reindex` (ROS 1 tools), then replay "
+                    "it") if self.kind == "bag" else "check it with `ros2 bag info`"
+            raise BagError(f"{self.path}: cannot open bag ({type(e).__name__}: {e}); {hint}") from e
 
     def messages(self, topics: set[str]) -> Iterator[RawMessage]:
         """Deserialised messages on ``topics``."""
-        if self.kind == "mcap":
-            yield from self._mcap_messages(topics)
+        if self._streamed:
+            for file in self.files:
+                yield from self._mcap_messages(file, topics)
             return
-        if self._salvaged is not None:
-            yield from self._salvaged.messages(topics, self.warnings)
+        if self._salvaged:
+            for salvage in self._salvaged:
+                yield from salvage.messages(topics, self.warnings)
             return
         from rosbags.highlevel import AnyReader
 
@@ -254,7 +299,7 @@ class BagReader:
             except Exception as e:  # noqa: BLE001
                 self.warnings.append(f"{self.path}: stopped reading at a damaged record ({type(e).__name__}: {e})")
 
-    def _mcap_messages(self, topics: set[str]) -> Iterator[RawMessage]:
+    def _mcap_messages(self, file: Path, topics: set[str]) -> Iterator[RawMessage]:
         from mcap.records import Channel, Message, Schema
         from mcap.stream_reader import StreamReader
 
@@ -262,7 +307,7 @@ class BagReader:
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
         n = 0
-        with open(self.file, "rb") as fh:
+        with open(file, "rb") as fh:
             try:
                 for rec in StreamReader(fh, skip_magic=False).records:
                     if isinstance(rec, Schema):
@@ -280,7 +325,7 @@ class BagReader:
                         yield RawMessage(ch.topic, mtype, ts.deserialize_cdr(rec.data, mtype), rec.log_time)
                         n += 1
             except Exception as e:  # noqa: BLE001 - EndOfFile, bad CRC, ...
-                self.warnings.append(f"{self.file}: truncated or damaged after {n} messages "
+                self.warnings.append(f"{file}: truncated or damaged after {n} messages "
                                      f"({type(e).__name__}); the readable part was used")
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from nmnet_ros.bags import BagError, BagReader, make_bag, read_frames, typestore
 from nmnet_ros.demo import SAMPLE_BAG
@@ -122,6 +123,78 @@ def test_truncated_db3_reports_and_uses_readable_part(tmp_path):
     s = json.loads((tmp_path / "s.json").read_text())
     assert 3 <= s["processed"] < 30
     assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"] - 1
+
+
+def split_bag(tmp_path: Path, fmt: str, names: list[str], metadata: bool = True) -> Path:
+    """A ROS 2 bag directory as ``ros2 bag record --max-bag-size`` leaves it: one storage file per part, three frames
+    each, listed in recording order in metadata.yaml (or, ``metadata=False``, without it)."""
+    out, ext = tmp_path / f"split_{fmt}", "mcap" if fmt == "mcap" else "db3"
+    out.mkdir(parents=True)
+    for k, name in enumerate(names):
+        part = tmp_path / f"part{k}_{fmt}"
+        assert make_bag(data_dir("kitti-07"), part, fmt, frames=range(3 * k, 3 * k + 3)) == 3
+        next(part.glob(f"*.{ext}")).rename(out / f"{name}.{ext}")
+        if metadata and k == 0:
+            meta = yaml.safe_load((part / "metadata.yaml").read_text())
+    if metadata:
+        meta["rosbag2_bagfile_information"]["relative_file_paths"] = [f"{n}.{ext}" for n in names]
+        (out / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    return out
+
+
+def recompressed(src: Path, out: Path, mode: str, storage: str) -> Path:
+    """``src`` rewritten as ``ros2 bag record --compression-mode file|message --compression-format zstd`` writes it."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    w = Writer(out, version=9, storage_plugin=StoragePlugin[storage])
+    w.set_compression(CompressionMode[mode], CompressionFormat.ZSTD)
+    with AnyReader([src]) as r, w:
+        conns = {c.topic: w.add_connection(c.topic, c.msgtype, typestore=typestore()) for c in r.connections}
+        for c, t, raw in r.messages():
+            w.write(conns[c.topic], t, raw)
+    return out
+
+
+def test_every_file_of_a_split_or_compressed_ros2_bag_is_read_in_recording_order(tmp_path):
+    """A long recording split into several files is read whole (the .mcap reader used to take the first file only,
+    dropping the rest without a word), in metadata.yaml's order or, without it, in rosbag2's numbering (_2 before
+    _10), which is said; file- and message-compressed bags are read through rosbags."""
+    stamps = np.loadtxt(data_dir("kitti-07") / "images.txt", usecols=0)[:9]
+
+    def read(path: Path) -> tuple[list[float], list[str]]:
+        reader = BagReader(path)
+        it, _ = read_frames(reader)
+        return [f.stamp for f in it], reader.new_warnings()
+
+    names = ["run_0", "run_1", "run_2"]
+    for fmt in ("mcap", "sqlite3"):
+        got, warnings = read(split_bag(tmp_path / fmt, fmt, names))
+        np.testing.assert_allclose(got, stamps, atol=1e-6, err_msg=fmt)
+        assert warnings == [], warnings
+    bare = split_bag(tmp_path / "bare", "mcap", ["run_2", "run_10", "run_11"], metadata=False)
+    got, warnings = read(bare)
+    np.testing.assert_allclose(got, stamps, atol=1e-6)
+    assert warnings == [f"{bare}: no readable metadata.yaml; its 3 .mcap file(s) are read directly, in name order "
+                        f"(`ros2 bag reindex {bare}` rewrites metadata.yaml)"]
+    whole = split_bag(tmp_path / "whole", "mcap", names)
+    for mode, storage in (("FILE", "MCAP"), ("MESSAGE", "MCAP"), ("FILE", "SQLITE3")):
+        got, _ = read(recompressed(whole, tmp_path / f"{mode}_{storage}", mode, storage))
+        np.testing.assert_allclose(got, stamps, atol=1e-6, err_msg=(mode, storage))
+    zipped = tmp_path / "FILE_MCAP"
+    (zipped / "metadata.yaml").unlink()
+    with pytest.raises(BagError, match=r"\.mcap\.zstd files are compressed and metadata.yaml, which says how, is missing"):
+        BagReader(zipped)
+    listed = split_bag(tmp_path / "lost", "mcap", names)
+    (listed / "run_1.mcap").unlink()
+    got, warnings = read(listed)
+    np.testing.assert_allclose(got, stamps[[0, 1, 2, 6, 7, 8]], atol=1e-6)
+    assert warnings == [f"{listed / 'run_1.mcap'}: listed in {listed / 'metadata.yaml'} but missing; the bag's other "
+                        "files are read"]
+    r = nmnet("replay", str(split_bag(tmp_path / "cli", "mcap", names)), "--out", str(tmp_path / "o.mcap"), "--json",
+              str(tmp_path / "s.json"), "--no-progress", "--detector", "sift", "--selector", "ratio+magsac")
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "s.json").read_text())["processed"] == 9
 
 
 def test_a_ros1_bag_is_refused_by_live_replay_before_the_output_file(bags, tmp_path):
