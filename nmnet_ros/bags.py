@@ -150,6 +150,11 @@ class RawMessage:
     log_time_ns: int
 
 
+def _ros2_name(name: str) -> str:
+    """A message type as rosbags names it (sensor_msgs/msg/Image) from a ROS 1 schema's sensor_msgs/Image."""
+    return name if "/msg/" in name else name.replace("/", "/msg/", 1)
+
+
 def _natural(path: Path) -> list:
     """Sort key putting rosbag2's split files in recording order (bag_2 before bag_10)."""
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name)]
@@ -229,6 +234,7 @@ class BagReader:
         if not self.path.exists():
             raise BagError(f"{self.path}: no such bag")
         self.kind, self.files, self.warnings = _bag_files(self.path)
+        self.ros1 = self.kind == "bag"  # ROS 1 messages: a .bag, or an .mcap converted from one (`mcap convert`)
         for f in self.files:
             _check_signature(f, self.kind)
         # .mcap files are streamed record by record (a truncated one yields its readable part); rosbags decompresses
@@ -258,9 +264,10 @@ class BagReader:
                     with open(file, "rb") as fh:
                         for rec in StreamReader(fh, skip_magic=False).records:
                             if isinstance(rec, Schema):
-                                schemas[rec.id] = rec.name
+                                schemas[rec.id] = _ros2_name(rec.name)
                             elif isinstance(rec, Channel):
                                 topics[rec.topic] = schemas.get(rec.schema_id, "")
+                                self.ros1 |= rec.message_encoding == "ros1"
                 except Exception as e:  # noqa: BLE001 - truncated/corrupt: keep what was read
                     self.damage = self.damage or f"{type(e).__name__} after {len(topics)} topics"
             return topics
@@ -303,7 +310,7 @@ class BagReader:
         from mcap.records import Channel, Message, Schema
         from mcap.stream_reader import StreamReader
 
-        ts = typestore()
+        stores = {"ros2msg": typestore(), "ros1msg": typestore(ros1=True)}  # by schema encoding: rosbag2's, `mcap convert`'s
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
         n = 0
@@ -312,17 +319,19 @@ class BagReader:
                 for rec in StreamReader(fh, skip_magic=False).records:
                     if isinstance(rec, Schema):
                         schemas[rec.id] = rec
-                        if rec.name not in ts.types and rec.encoding == "ros2msg":
-                            ts.register(get_types_from_msg(rec.data.decode(), rec.name))
+                        ts = stores.get(rec.encoding)
+                        if ts is not None and _ros2_name(rec.name) not in ts.types:
+                            ts.register(get_types_from_msg(rec.data.decode(), _ros2_name(rec.name)))
                     elif isinstance(rec, Channel):
                         channels[rec.id] = rec
                     elif isinstance(rec, Message):
                         ch = channels.get(rec.channel_id)
                         if ch is None or ch.topic not in topics:
                             continue
-                        name = schemas[ch.schema_id].name
-                        mtype = name if "/msg/" in name else name.replace("/", "/msg/", 1)
-                        yield RawMessage(ch.topic, mtype, ts.deserialize_cdr(rec.data, mtype), rec.log_time)
+                        mtype = _ros2_name(schemas[ch.schema_id].name)
+                        msg = (stores["ros1msg"].deserialize_ros1(rec.data, mtype) if ch.message_encoding == "ros1"
+                               else stores["ros2msg"].deserialize_cdr(rec.data, mtype))
+                        yield RawMessage(ch.topic, mtype, msg, rec.log_time)
                         n += 1
             except Exception as e:  # noqa: BLE001 - EndOfFile, bad CRC, ...
                 self.warnings.append(f"{file}: truncated or damaged after {n} messages "

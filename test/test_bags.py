@@ -197,9 +197,41 @@ def test_every_file_of_a_split_or_compressed_ros2_bag_is_read_in_recording_order
     assert json.loads((tmp_path / "s.json").read_text())["processed"] == 9
 
 
+def test_an_mcap_converted_from_a_ros1_bag_reads_as_the_bag(bags, tmp_path):
+    """``mcap convert x.bag x.mcap`` keeps ROS 1 schemas (ros1msg, sensor_msgs/Image) and ROS 1 serialisation: the
+    frames are those of the .bag (the reader found "no sensor_msgs/Image or CompressedImage topic", listing
+    /camera/image_raw/compressed [sensor_msgs/CompressedImage]); live replay refuses it as it refuses a .bag."""
+    from mcap.writer import Writer
+    from rosbags.highlevel import AnyReader
+
+    converted = tmp_path / "converted.mcap"
+    with open(converted, "wb") as fh, AnyReader([bags["ros1"]]) as r:
+        w = Writer(fh)
+        w.start(profile="ros1", library="test")
+        channels = {}
+        for c in r.connections:
+            schema = w.register_schema(name=c.msgtype.replace("/msg/", "/"), encoding="ros1msg", data=c.msgdef.data.encode())
+            channels[c.id] = w.register_channel(topic=c.topic, message_encoding="ros1", schema_id=schema)
+        for c, t, raw in r.messages():
+            w.add_message(channels[c.id], log_time=t, data=raw, publish_time=t)
+        w.finish()
+    reader = BagReader(converted)
+    assert reader.ros1 and reader.topics["/camera/image_raw/compressed"] == "sensor_msgs/msg/CompressedImage"
+    got, want = (list(read_frames(BagReader(path))[0]) for path in (converted, bags["ros1"]))
+    assert len(got) == len(want) == 4
+    for a, b in zip(got, want, strict=True):
+        assert a.stamp == b.stamp
+        np.testing.assert_array_equal(a.image, b.image)
+        np.testing.assert_array_equal(a.camera.K, b.camera.K)
+        np.testing.assert_array_equal(a.gt_pose, b.gt_pose)
+    r = nmnet("replay", str(converted), "--live", "--out", str(tmp_path / "live.mcap"))
+    assert r.returncode == 2 and "replay ROS 1 bags (and .mcap files converted from them) offline" in r.stderr, r.stderr
+
+
 def test_a_ros1_bag_is_refused_by_live_replay_before_the_output_file(bags, tmp_path):
     r = nmnet("replay", str(bags["ros1"]), "--live", "--out", str(tmp_path / "live.mcap"), "--no-progress")
-    assert r.returncode == 2 and "live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags offline" in r.stderr, r.stderr
+    says = "live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags (and .mcap files converted from them) offline"
+    assert r.returncode == 2 and says in r.stderr, r.stderr
     assert not (tmp_path / "live.mcap").exists()
 
 
