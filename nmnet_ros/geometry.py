@@ -7,9 +7,13 @@ Conventions: for a pair (image 0, image 1), R, t map camera-0 coordinates to cam
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from types import ModuleType
+from typing import TypeVar
 
 import cv2
 import numpy as np
+
+ArrayT = TypeVar("ArrayT")  # a numpy array, or a torch tensor where gradients are needed
 
 
 class CameraError(ValueError):
@@ -203,7 +207,7 @@ def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac",
     return E[:3], mask.ravel().astype(bool)  # several stacked solutions: the first is the best
 
 
-def eight_point_rows(x0, y0, x1, y1, xp=np):
+def eight_point_rows(x0: ArrayT, y0: ArrayT, x1: ArrayT, y1: ArrayT, xp: ModuleType = np) -> ArrayT:
     """Rows of x1^T E x0 = 0 as linear equations in E's nine entries (row-major), one per correspondence.
 
     Array-module generic (``xp``: numpy, or torch where the loss needs gradients), so the eight-point's

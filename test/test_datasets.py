@@ -74,6 +74,7 @@ def test_frames_the_ground_truth_does_not_cover_are_left_out_not_given_another_f
     file whose stamps match no image is refused, naming it."""
     from nmnet_ros.bags import TOPICS, BagReader, make_bag
     from nmnet_ros.evaluate import load_eval_pairs
+    from nmnet_ros.train import load_pairs
 
     src = data_dir("strecha-entry-p10")
     dst = tmp_path / "entry"
@@ -91,6 +92,9 @@ def test_frames_the_ground_truth_does_not_cover_are_left_out_not_given_another_f
     assert len(list(BagReader(tmp_path / "bag").messages({TOPICS["gt"]}))) == 2  # frames 3 and 5
     pairs = load_eval_pairs([f"{dst}:3-5"], (1, 2), cache)  # nmnet eval says so, and evaluates (3, 5) only
     assert [(p.i, p.j) for p in pairs] == [(3, 5)] and "1 of 10 frames have no pose" in capsys.readouterr().err
+    logs: list[str] = []  # nmnet train likewise, through its log
+    pairs = load_pairs([f"{dst}:3-5"], cache, (1, 2), min_inliers=5, log=logs.append)
+    assert [(p.i, p.j) for p in pairs] == [(3, 5)] and "1 of 10 frames have no pose" in logs[0], logs
 
     (dst / "groundtruth.txt").write_text("\n".join(f"{1000 + float(r.split()[0])} {r.split(maxsplit=1)[1]}" for r in rows))
     with pytest.raises(DatasetError, match="groundtruth.txt: no pose at any image's stamp.*must be those of images.txt"):
