@@ -21,7 +21,7 @@ from rosbags.typesys.msg import get_types_from_msg
 from rosbags.typesys.store import Typestore
 
 from .caminfo import camera_from_info, info_fields
-from .datasets import Sequence, quat_to_rot
+from .datasets import Sequence, Trajectory, quat_to_rot
 from .geometry import Camera, CameraError
 from .imgconv import IMAGE_TYPES, ImageError, array_to_image_fields, decode_compressed, image_to_array
 from .posemsg import rot_to_quat
@@ -130,13 +130,12 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
 # ---------------------------------------------------------------------------------------------
 @dataclass
 class Frame:
-    """One image of a bag with the calibration and ground truth known at that time."""
+    """One image of a bag with the calibration known at that time."""
 
     stamp: float
     image: np.ndarray | None  # None when the message could not be decoded
     error: str | None
     camera: Camera | None
-    gt_pose: np.ndarray | None  # 4x4 T_WC, when the bag carries ground truth at this stamp
     camera_error: str | None = None  # why the latest camera_info was refused, when it was
 
 
@@ -441,35 +440,46 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
 
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
                 gt_topic: str | None = None, rectified: bool = False) -> tuple[Iterator[Frame], dict[str, str | None]]:
-    """Frames of a bag with auto-detected topics; errors name the topics the bag has.
+    """Frames of a bag with auto-detected topics (ground truth: :func:`bag_ground_truth`); errors name the topics the
+    bag has.
 
     ``rectified``: the images are rectified, so their camera is camera_info's P (see caminfo).
     """
     chosen = choose_topics(reader, image_topic, info_topic, gt_topic)
-    img_t, info_t, gt_t = chosen["image"], chosen["camera_info"], chosen["ground_truth"]
+    img_t, info_t = chosen["image"], chosen["camera_info"]
 
     def gen() -> Iterator[Frame]:
-        camera, camera_error, gt = None, None, {}
+        camera, camera_error = None, None
         pending: list[tuple[float, np.ndarray | None, str | None]] = []
-        for m in reader.messages({t for t in (img_t, info_t, gt_t) if t}):
+        for m in reader.messages({t for t in (img_t, info_t) if t}):
             if m.topic == info_t:
                 try:
                     camera, camera_error = camera_from_info(m.msg, rectified), None
                 except (CameraError, ValueError) as e:
                     camera_error = str(e)  # the frames keep the last good calibration, if any, and say why not this one
-            elif m.topic == gt_t:
-                gt[round(msg_time(m.msg), 6)] = pose_from_msg(m.msg)
             else:
                 try:
                     img, err = decode_image_msg(m.msg, m.msgtype), None
                 except ImageError as e:
                     img, err = None, str(e)
                 pending.append((msg_time(m.msg), img, err))
-                # camera_info and ground truth share the image stamp and may come just after it
+                # camera_info shares the image stamp and may come just after it
                 while len(pending) > 1:
                     s, im, er = pending.pop(0)
-                    yield Frame(s, im, er, camera, gt.get(round(s, 6)), camera_error)
+                    yield Frame(s, im, er, camera, camera_error)
         for s, im, er in pending:
-            yield Frame(s, im, er, camera, gt.get(round(s, 6)), camera_error)
+            yield Frame(s, im, er, camera, camera_error)
 
     return gen(), chosen
+
+
+def bag_ground_truth(reader: BagReader, topic: str | None) -> Trajectory | None:
+    """The bag's ground-truth poses (PoseStamped on ``topic``, T_WC by header stamp) as a :class:`Trajectory`, looked
+    up as a ``--gt`` TUM file is: a motion-capture stream at its own rate and stamps gives each frame its nearest
+    pose within half the stream's spacing. None without the topic or its messages."""
+    if topic is None:
+        return None
+    stamped = [(msg_time(m.msg), pose_from_msg(m.msg)) for m in reader.messages({topic})]
+    if not stamped:
+        return None
+    return Trajectory(np.array([t for t, _ in stamped]), np.array([T for _, T in stamped]))

@@ -20,14 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from .bags import BagError, BagReader, choose_topics, pick_topic, pose_from_msg, typestore
+from .bags import BagError, BagReader, choose_topics, typestore
 from .caminfo import info_fields
 from .datasets import Trajectory
 from .dds import LARGE_FRAMES_PROFILE
 from .geometry import Camera
 from .mcap_out import McapOutput
 from .posemsg import estimate_of_message
-from .replay import error_summary, frame_error
+from .replay import error_summary, frame_error, truth_missed
 
 NODE_NAME = "nmnet_node"
 
@@ -197,10 +197,9 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
     return stats
 
 
-def score_recording(path: Path, source: BagReader, gt_tum: Trajectory | None = None,
-                    gt_topic: str | None = None) -> dict:
-    """Pose errors of a recorded ``~/relative_pose`` stream against the ``source`` bag's ground truth (or ``gt_tum``, a
-    :func:`~nmnet_ros.datasets.read_tum` Trajectory), scored as the offline replay scores its results
+def score_recording(path: Path, truth: Trajectory | None) -> dict:
+    """Pose errors of a recorded ``~/relative_pose`` stream against ``truth`` (the replay's
+    :func:`~nmnet_ros.replay.ground_truth`), scored as the offline replay scores its results
     (:func:`~nmnet_ros.replay.frame_error`; "no estimate" is a failure).
 
     Each message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the
@@ -208,18 +207,17 @@ def score_recording(path: Path, source: BagReader, gt_tum: Trajectory | None = N
     """
     rec = BagReader(path)
     poses = [(m.log_time_ns, m.msg) for m in rec.messages({f"/{NODE_NAME}/relative_pose"})]
-    if gt_tum is not None:
-        def truth(t_ns: int) -> np.ndarray | None:
-            return gt_tum.at(t_ns / 1e9)
-    else:
-        gt_t = pick_topic(source.topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)
-        gt = {m.msg.header.stamp.sec * 10**9 + m.msg.header.stamp.nanosec: pose_from_msg(m.msg)
-              for m in source.messages({gt_t})} if gt_t else {}
-        truth = gt.get
+
+    if note := truth_missed(truth, [t / 1e9 for t, _ in poses]):
+        print(f"warning: {note}", file=sys.stderr)
+
+    def truth_at(t_ns: int) -> np.ndarray | None:
+        return None if truth is None else truth.at(t_ns / 1e9)
+
     errs = []
     for (t_prev, _), (t_cur, msg) in zip(poses, poses[1:], strict=False):
         o, p = msg.pose.pose.orientation, msg.pose.pose.position
         status, pose = estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance)
-        if (err := frame_error(status, pose, truth(t_prev), truth(t_cur))) is not None:
+        if (err := frame_error(status, pose, truth_at(t_prev), truth_at(t_cur))) is not None:
             errs.append(err)
     return error_summary(errs)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bags import BagReader, choose_topics, read_frames
+from .bags import BagReader, bag_ground_truth, choose_topics, read_frames
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
 from .datasets import Trajectory, read_camera_yaml, read_tum
@@ -118,7 +118,7 @@ class Run:
         }
 
 
-def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, gt_tum: Trajectory | None = None,
+def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: Trajectory | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
                 log: Callable[[str], None] = print, camera: Camera | None = None,
                 rectified: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
@@ -126,8 +126,8 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, gt_tum:
 
     ``reader``: the bag, opened once (opening scans an .mcap whole) and read again for each pass.
 
-    ``gt_tum``: ground truth from a TUM file (:func:`~nmnet_ros.datasets.read_tum`), instead of the bag's poses;
-    ``camera``: the calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.
+    ``truth``: the ground truth the frames are scored against (:func:`ground_truth`), by stamp; ``camera``: the
+    calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.
     """
     frames, chosen = read_frames(reader, **(topics or {}), rectified=rectified)
     run = Run(fe.config["selector"])
@@ -169,7 +169,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, gt_tum:
             if cam is None:
                 continue
             fe.camera = cam
-            T = f.gt_pose if gt_tum is None else gt_tum.at(f.stamp)
+            T = None if truth is None else truth.at(f.stamp)
             r = fe.process(f.image, f.stamp)
             run.results.append(r)
             err = frame_error(r.status, r.pose, prev_gt, T)
@@ -192,9 +192,20 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, gt_tum:
             bar.close()
         run.warnings = notes.counts
         notes.close()
-    for w in reader.new_warnings():
-        log(f"warning: {w}")
+    for w in [*reader.new_warnings(), truth_missed(truth, [r.stamp for r in run.results])]:
+        if w:
+            log(f"warning: {w}")
     return run, n_frames, overlay
+
+
+def truth_missed(truth: Trajectory | None, stamps: list[float]) -> str | None:
+    """What to say when the ground truth has a pose for none of the frames (stamped on another clock, or of another
+    recording), instead of a summary that silently scores nothing."""
+    if truth is None or not stamps or truth.lookup(np.asarray(stamps))[1].any():
+        return None
+    return (f"the ground truth has no pose within half its spacing of any frame (poses {truth.stamps[0]:.3f} .. "
+            f"{truth.stamps[-1]:.3f} s, frames {min(stamps):.3f} .. {max(stamps):.3f} s): nothing is scored; the two "
+            "must be stamped on the same clock")
 
 
 def chain_trajectory(run: Run) -> tuple[np.ndarray, np.ndarray]:
@@ -343,6 +354,12 @@ def node_params(args: argparse.Namespace) -> dict:
     return {**params, **given_options(args)}
 
 
+def ground_truth(reader: BagReader, gt_tum: Trajectory | None, topics: dict[str, str | None]) -> Trajectory | None:
+    """What the replay scores against: the ``--gt`` TUM file, else the bag's ground-truth topic (each looked up by
+    stamp within half its spacing), else nothing."""
+    return gt_tum if gt_tum is not None else bag_ground_truth(reader, topics["ground_truth"])
+
+
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay`` (offline)."""
     reader = BagReader(args.bag)  # a missing or unreadable bag stops here
@@ -361,8 +378,9 @@ def main(args: argparse.Namespace) -> int:
                              "replay without --live for the others")
         if params["weights"]:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
-        return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params, gt_tum, chosen)
-    choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
+        return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params,
+                         ground_truth(reader, gt_tum, chosen), chosen)
+    chosen = choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
     cfg = frontend_config(params)
     if args.selector is not None:
         cfg["selector"] = args.selector
@@ -370,14 +388,15 @@ def main(args: argparse.Namespace) -> int:
     base_fe = Frontend(None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
                               "resize_width": cfg["resize_width"]}) if args.baseline else None
     out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
+    truth = ground_truth(reader, gt_tum, chosen)
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
-        run, n, overlay = process_bag(reader, out, fe, gt_tum, args.debug_images, not args.no_progress, topics,
+        run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics,
                                       camera=camera, rectified=params["rectified"])
         runs.append(run)
         if base_fe is not None:
-            base, _, _ = process_bag(reader, None, base_fe, gt_tum, progress=not args.no_progress, topics=topics,
+            base, _, _ = process_bag(reader, None, base_fe, truth, progress=not args.no_progress, topics=topics,
                                      camera=camera, rectified=params["rectified"],
                                      log=lambda _: None)  # the same frames: said once, by the first pass
             base.name = "SIFT+ratio+MAGSAC++"
@@ -428,7 +447,7 @@ def live_node_args(args: argparse.Namespace) -> list[str]:
 
 
 def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, camera: Camera | None, params: dict,
-              gt_tum: Trajectory | None = None, topics: dict[str, str | None] | None = None) -> int:
+              truth: Trajectory | None = None, topics: dict[str, str | None] | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
     from .live import play_live, score_recording
 
@@ -445,7 +464,7 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     wall = time.perf_counter() - t0
     lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
     processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result
-    scores = score_recording(args.out, reader, gt_tum, (topics or {}).get("ground_truth"))
+    scores = score_recording(args.out, truth)
     diag = stats["diagnostics"]  # the node's last /diagnostics: why frames were dropped
     warnings = {k.removeprefix("warn_"): int(v) for k, v in diag.items() if k.startswith("warn_")}
     summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nmnet_ros.bags import BagError, BagReader, make_bag, read_frames, typestore
+from nmnet_ros.bags import BagError, BagReader, bag_ground_truth, make_bag, read_frames, typestore
 from nmnet_ros.demo import SAMPLE_BAG
 
 from .conftest import ROOT, data_dir
@@ -65,9 +65,12 @@ def test_round_trip_all_formats_same_frames_and_results(bags, tmp_path):
         np.testing.assert_array_equal(a.image, c.image)  # same JPEG bytes in .mcap and .bag
         assert np.abs(a.image.astype(int) - b.image.astype(int)).mean() < 3  # raw Image vs JPEG
         np.testing.assert_allclose(a.camera.K, b.camera.K)
-        np.testing.assert_allclose(a.gt_pose, c.gt_pose)
+    truths = [bag_ground_truth(BagReader(path), "/ground_truth/pose") for path in bags.values()]
+    for truth in truths:
+        np.testing.assert_allclose(truth.stamps, [f.stamp for f in frames["mcap"]])
+        np.testing.assert_allclose(truth.poses, truths[0].poses)
     seq_gt = np.loadtxt(data_dir("kitti-07") / "groundtruth.txt")[50]
-    np.testing.assert_allclose(frames["mcap"][0].gt_pose[:3, 3], seq_gt[1:4], atol=1e-9)
+    np.testing.assert_allclose(truths[0].poses[0][:3, 3], seq_gt[1:4], atol=1e-9)
     results = {}
     for fmt in ("mcap", "ros1"):
         out = tmp_path / f"{fmt}.mcap"
@@ -223,7 +226,9 @@ def test_an_mcap_converted_from_a_ros1_bag_reads_as_the_bag(bags, tmp_path):
         assert a.stamp == b.stamp
         np.testing.assert_array_equal(a.image, b.image)
         np.testing.assert_array_equal(a.camera.K, b.camera.K)
-        np.testing.assert_array_equal(a.gt_pose, b.gt_pose)
+    got, want = (bag_ground_truth(BagReader(path), "/ground_truth/pose") for path in (converted, bags["ros1"]))
+    np.testing.assert_array_equal(got.poses, want.poses)
+    np.testing.assert_array_equal(got.stamps, want.stamps)
     r = nmnet("replay", str(converted), "--live", "--out", str(tmp_path / "live.mcap"))
     assert r.returncode == 2 and "replay ROS 1 bags (and .mcap files converted from them) offline" in r.stderr, r.stderr
 
@@ -547,21 +552,68 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
         runs[name] = json.loads((tmp_path / f"{name}.json").read_text())
     keys = ("median_rot_deg", "median_trans_deg", "auc5", "auc10", "auc20")
     assert runs["bag"]["auc5"] > 80 and [runs["tum"][k] for k in keys] == pytest.approx([runs["bag"][k] for k in keys]), runs
-    source = BagReader(raw_bag)
-    live_scoring = [score_recording(tmp_path / "bag.mcap", source, gt) for gt in (None, read_tum(tum))]
+    own = bag_ground_truth(BagReader(raw_bag), "/ground_truth/pose")
+    live_scoring = [score_recording(tmp_path / "bag.mcap", gt) for gt in (own, read_tum(tum))]
     assert live_scoring[0]["scored_pairs"] == 4 and live_scoring[1] == pytest.approx(live_scoring[0])  # as --live scores
     shifted = tmp_path / "shifted.txt"  # every pose a frame later: the errors change
     rows = [ln.split() for ln in tum.read_text().splitlines() if not ln.startswith("#")]
     shifted.write_text("".join(" ".join([a[0], *b[1:]]) + "\n" for a, b in zip(rows, rows[1:], strict=False)))
-    assert score_recording(tmp_path / "bag.mcap", source, read_tum(shifted)) != pytest.approx(live_scoring[0])
+    assert score_recording(tmp_path / "bag.mcap", read_tum(shifted)) != pytest.approx(live_scoring[0])
     gap = tmp_path / "gap.txt"  # no pose for frame 62: its two pairs are not scored (not against frame 61's pose)
     gap.write_text("".join(" ".join(r) + "\n" for r in rows[55:62] + rows[63:70]))
-    assert score_recording(tmp_path / "bag.mcap", source, read_tum(gap))["scored_pairs"] == 2
+    assert score_recording(tmp_path / "bag.mcap", read_tum(gap))["scored_pairs"] == 2
     bad = tmp_path / "bad.txt"
     bad.write_text("0.0 1 2 3\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--gt", str(bad), "--no-progress")
     assert r.returncode == 2 and f"{bad}:1: expected 'timestamp tx ty tz qx qy qz qw'" in r.stderr, r.stderr
     assert not (tmp_path / "none.mcap").exists()
+
+
+def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp_path, capsys):
+    """A motion-capture stream in the bag is not stamped with the camera: here each frame's pose comes 4 ms after
+    it, and a pose 1 m off 54 ms after it (the stream runs at twice the camera's rate). Each frame takes its nearest
+    pose within half the stream's spacing, as with --gt: the scores are the exact-stamp bag's, offline and as --live
+    scores them; the replay used to find no pose at any frame (0 pairs scored) and said nothing. Ground truth on
+    another clock is named."""
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+
+    from nmnet_ros.datasets import read_tum
+    from nmnet_ros.live import score_recording
+
+    ts = typestore()
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    mocap = tmp_path / "mocap"
+    with Reader(raw_bag) as r, Writer(mocap, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
+        for c, t, raw in r.messages():
+            if c.topic != "/ground_truth/pose":
+                w.write(conns[c.id], t, raw)
+                continue
+            for delay, off in ((4_000_000, 0.0), (54_000_000, 1.0)):
+                msg = ts.deserialize_cdr(raw, c.msgtype)
+                ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec + delay
+                msg.header.stamp = Time(sec=ns // 10**9, nanosec=ns % 10**9)
+                msg.pose.position.x += off
+                w.write(conns[c.id], ns, ts.serialize_cdr(msg, c.msgtype))
+    runs = {}
+    for name, bag in (("exact", raw_bag), ("mocap", mocap)):
+        r, runs[name] = replay_json(bag, tmp_path, name=name)
+        assert r.returncode == 0, r.stderr
+    keys = ("scored_pairs", "median_rot_deg", "median_trans_deg", "auc5", "auc10", "auc20")
+    assert runs["exact"]["scored_pairs"] == 5 and [runs["mocap"][k] for k in keys] == pytest.approx(
+        [runs["exact"][k] for k in keys]), runs
+    truth = bag_ground_truth(BagReader(mocap), "/ground_truth/pose")
+    assert len(truth.stamps) == 12 and 0.04 < truth.spacing < 0.06
+    exact = bag_ground_truth(BagReader(raw_bag), "/ground_truth/pose")
+    assert score_recording(tmp_path / "exact.mcap", truth) == pytest.approx(score_recording(tmp_path / "exact.mcap", exact))
+    capsys.readouterr()
+    rows = [ln.split() for ln in (data_dir("kitti-07") / "groundtruth.txt").read_text().splitlines() if ln[0] != "#"]
+    (tmp_path / "other_clock.txt").write_text("".join(f"{float(r[0]) + 1000} {' '.join(r[1:])}\n" for r in rows))
+    says = "the ground truth has no pose within half its spacing of any frame (poses 1000.000 .. "
+    r, other = replay_json(raw_bag, tmp_path, "--gt", str(tmp_path / "other_clock.txt"), name="other")
+    assert r.returncode == 0 and says in r.stdout and other["scored_pairs"] == 0, (r.stdout, other)
+    assert score_recording(tmp_path / "exact.mcap", read_tum(tmp_path / "other_clock.txt"))["scored_pairs"] == 0
+    assert says in capsys.readouterr().err
 
 
 def two_camera_bag(src: Path, dst: Path) -> None:
