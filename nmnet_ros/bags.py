@@ -400,14 +400,44 @@ def pick_topic(topics: dict[str, str], types: tuple[str, ...], what: str, wanted
     raise BagError(f"several {what} topics ({', '.join(sorted(found))}); choose one with --{what}-topic. Bag topics: {listing}")
 
 
+GT_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped", "nav_msgs/msg/Odometry",
+            "geometry_msgs/msg/TransformStamped")  # what a ground-truth topic may carry
+GT_NAMES = ("ground_truth", "groundtruth", "vicon", "mocap", "optitrack", "qualisys", "vrpn", "leica")  # and be called
+
+
+def looks_like_ground_truth(topic: str) -> bool:
+    """Whether a topic's name says ground truth (/ground_truth/pose, /vicon/robot/robot, /mocap/odom, /gt/pose):
+    a pose topic is taken as ground truth by itself only then, as a robot's bag also holds poses that are not
+    (/odom from the wheels, nav2's /goal_pose)."""
+    name = topic.lower()
+    return any(n in name for n in GT_NAMES) or "gt" in re.split(r"[^a-z0-9]+", name)
+
+
+def pick_ground_truth(topics: dict[str, str], wanted: str | None) -> tuple[str | None, str | None]:
+    """The ground-truth topic (``wanted``, else the one pose topic whose name says so) and a note naming the pose
+    topics not taken (None when there are none)."""
+    if wanted:
+        return pick_topic(topics, GT_TYPES, "gt", wanted), None
+    poses = sorted(t for t, m in topics.items() if m in GT_TYPES)
+    chosen = pick_topic({t: topics[t] for t in poses if looks_like_ground_truth(t)}, GT_TYPES, "gt", None)
+    others = [f"{t} [{topics[t]}]" for t in poses if t != chosen]
+    return chosen, (f"not taken as ground truth: {', '.join(others)} (the name does not say so); name one with --gt-topic "
+                    "to score against it (the camera's pose; --gt-camera for a tracked body)") if others else None
+
+
 def msg_time(msg: Any) -> float:
     """A message's header stamp in seconds."""
     return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
 def pose_from_msg(msg: Any) -> np.ndarray:
-    """PoseStamped -> 4x4."""
-    p, o = msg.pose.position, msg.pose.orientation
+    """A ground-truth message (:data:`GT_TYPES`) -> 4x4: PoseStamped's pose, PoseWithCovarianceStamped's and
+    Odometry's pose.pose, TransformStamped's transform."""
+    if hasattr(msg, "transform"):
+        p, o = msg.transform.translation, msg.transform.rotation
+    else:
+        pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+        p, o = pose.position, pose.orientation
     T = np.eye(4)
     T[:3, :3] = quat_to_rot([o.x, o.y, o.z, o.w])
     T[:3, 3] = [p.x, p.y, p.z]
@@ -423,7 +453,8 @@ def decode_image_msg(msg: Any, msgtype: str) -> np.ndarray:
 
 def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
                   gt_topic: str | None = None) -> dict[str, str | None]:
-    """The image, camera_info and ground-truth topics to read (the ones named, else the only one of each type).
+    """The image, camera_info and ground-truth topics to read (the ones named, else the only one of each type; for
+    ground truth, of those named so: :func:`looks_like_ground_truth`).
 
     BagError, listing the bag's topics, when there is no image topic, a named one is missing or of another
     type, or a type has several topics and none is named.
@@ -434,8 +465,11 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
         listing = ", ".join(f"{t} [{m}]" for t, m in sorted(topics.items())) or "none"
         damage = f"; reading stopped at {reader.damage}: the file is damaged or cut short" if reader.damage else ""
         raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}{damage}")
+    gt_t, note = pick_ground_truth(topics, gt_topic)
+    if note:
+        reader.warnings.append(note)
     return {"image": img_t, "camera_info": pick_topic(topics, ("sensor_msgs/msg/CameraInfo",), "info", info_topic),
-            "ground_truth": pick_topic(topics, ("geometry_msgs/msg/PoseStamped",), "gt", gt_topic)}
+            "ground_truth": gt_t}
 
 
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
@@ -474,7 +508,7 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
 
 
 def bag_ground_truth(reader: BagReader, topic: str | None) -> Trajectory | None:
-    """The bag's ground-truth poses (PoseStamped on ``topic``, T_WC by header stamp) as a :class:`Trajectory`, looked
+    """The bag's ground-truth poses (:data:`GT_TYPES` on ``topic``, by header stamp) as a :class:`Trajectory`, looked
     up as a ``--gt`` TUM file is: a motion-capture stream at its own rate and stamps gives each frame its nearest
     pose within half the stream's spacing. None without the topic or its messages."""
     if topic is None:

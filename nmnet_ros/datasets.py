@@ -89,6 +89,20 @@ def read_tum(path: Path) -> Trajectory:
     return Trajectory(a[:, 0], T)
 
 
+def parse_pose(text: str) -> np.ndarray:
+    """'x y z qx qy qz qw' (TUM's order, as ``static_transform_publisher`` takes it) -> 4x4; ValueError saying what is
+    wrong."""
+    try:
+        v = [float(f) for f in text.replace(",", " ").split()]
+    except ValueError:
+        v = []
+    if len(v) != 7 or not np.all(np.isfinite(v)) or np.linalg.norm(v[3:]) < 1e-9:
+        raise ValueError(f"{text!r}: expected 'x y z qx qy qz qw', seven numbers with a non-zero quaternion")
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = quat_to_rot(v[3:]), v[:3]
+    return T
+
+
 @dataclass
 class Trajectory:
     """Ground-truth poses in time order, looked up by stamp (sorted and spaced once, not per frame)."""
@@ -115,6 +129,11 @@ class Trajectory:
         s = np.atleast_1d(np.asarray(stamps, np.float64))
         i = self.nearest(s)
         return i, np.abs(self.stamps[i] - s) <= 0.5 * self.spacing + 1e-6
+
+    def moved(self, T: np.ndarray) -> Trajectory:
+        """The trajectory of a frame fixed to the tracked one at pose ``T`` in it (each pose times T): the camera's,
+        from a tracked body's and the camera's place on it."""
+        return Trajectory(self.stamps, self.poses @ T)
 
     def at(self, stamp: float) -> np.ndarray | None:
         """The pose at ``stamp`` (4x4 T_WC), or None where :meth:`lookup` finds none."""

@@ -21,7 +21,7 @@ import numpy as np
 from .bags import BagReader, bag_ground_truth, choose_topics, read_frames
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
-from .datasets import Trajectory, read_camera_yaml, read_tum
+from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
 from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose
@@ -302,7 +302,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet replay``."""
     p.add_argument("bag", type=Path, help=".bag, .db3 or .mcap file, or a ROS 2 bag directory")
     p.add_argument("--out", type=Path, required=True, help="output .mcap with matches and relative poses")
-    p.add_argument("--gt", type=Path, default=None, help="ground truth as a TUM file (else the bag's PoseStamped, if any)")
+    p.add_argument("--gt", type=Path, default=None, help="ground truth as a TUM file (else the bag's ground-truth topic, "
+                   "if any)")
+    p.add_argument("--gt-camera", type=gt_camera, default=None, metavar="'X Y Z QX QY QZ QW'",
+                   help="the camera's pose (optical frame: z forward, x right, y down) in the frame the ground truth "
+                   "tracks, when that is a body (a motion-capture marker set, base_link), not the camera")
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
     p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots (default: next to --out)")
     p.add_argument("--image-topic", default=None)
@@ -354,10 +358,20 @@ def node_params(args: argparse.Namespace) -> dict:
     return {**params, **given_options(args)}
 
 
-def ground_truth(reader: BagReader, gt_tum: Trajectory | None, topics: dict[str, str | None]) -> Trajectory | None:
+def gt_camera(text: str) -> np.ndarray:
+    """``--gt-camera``'s value as a 4x4 pose; argparse names the option and the value when it is not one."""
+    try:
+        return parse_pose(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from e
+
+
+def ground_truth(reader: BagReader, gt_tum: Trajectory | None, topics: dict[str, str | None],
+                 camera_in_body: np.ndarray | None = None) -> Trajectory | None:
     """What the replay scores against: the ``--gt`` TUM file, else the bag's ground-truth topic (each looked up by
-    stamp within half its spacing), else nothing."""
-    return gt_tum if gt_tum is not None else bag_ground_truth(reader, topics["ground_truth"])
+    stamp within half its spacing), else nothing; moved to the camera by ``--gt-camera`` when it tracks a body."""
+    truth = gt_tum if gt_tum is not None else bag_ground_truth(reader, topics["ground_truth"])
+    return truth.moved(camera_in_body) if truth is not None and camera_in_body is not None else truth
 
 
 def main(args: argparse.Namespace) -> int:
@@ -379,7 +393,7 @@ def main(args: argparse.Namespace) -> int:
         if params["weights"]:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
         return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params,
-                         ground_truth(reader, gt_tum, chosen), chosen)
+                         ground_truth(reader, gt_tum, chosen, args.gt_camera), chosen)
     chosen = choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
     cfg = frontend_config(params)
     if args.selector is not None:
@@ -388,7 +402,7 @@ def main(args: argparse.Namespace) -> int:
     base_fe = Frontend(None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
                               "resize_width": cfg["resize_width"]}) if args.baseline else None
     out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
-    truth = ground_truth(reader, gt_tum, chosen)
+    truth = ground_truth(reader, gt_tum, chosen, args.gt_camera)
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:

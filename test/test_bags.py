@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nmnet_ros.bags import BagError, BagReader, bag_ground_truth, make_bag, read_frames, typestore
+from nmnet_ros.bags import BagError, BagReader, bag_ground_truth, make_bag, pose_from_msg, read_frames, typestore
 from nmnet_ros.demo import SAMPLE_BAG
 
 from .conftest import ROOT, data_dir
@@ -614,6 +614,62 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
     assert r.returncode == 0 and says in r.stdout and other["scored_pairs"] == 0, (r.stdout, other)
     assert score_recording(tmp_path / "exact.mcap", read_tum(tmp_path / "other_clock.txt"))["scored_pairs"] == 0
     assert says in capsys.readouterr().err
+
+
+def test_ground_truth_of_a_tracked_body_scores_the_camera_with_its_place_on_the_body(raw_bag, tmp_path):
+    """A robot's bag: ground truth as nav_msgs/Odometry of base_link (x forward, z up) on /ground_truth/odom, beside
+    wheel odometry on /odom and nav2's /goal_pose. The topic named as ground truth is taken, the others are named as
+    not taken; --gt-camera (the camera's optical frame on the body) gives the scores of the camera's own poses, and
+    without it the scores are those of the wrong frame."""
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+
+    from nmnet_ros.posemsg import rot_to_quat
+
+    ts = typestore()
+    T, q = ts.types, rot_to_quat(np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]))  # optical axes in base_link
+    cam_in_body = np.eye(4)
+    cam_in_body[:3, :3], cam_in_body[:3, 3] = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]), [0.3, 0.0, 0.5]
+
+    def odometry(header, pose: np.ndarray, child: str):
+        rotation = rot_to_quat(pose[:3, :3])
+        p = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](*pose[:3, 3]),
+                                        orientation=T["geometry_msgs/msg/Quaternion"](*rotation))
+        zero = T["geometry_msgs/msg/Vector3"](0.0, 0.0, 0.0)
+        return T["nav_msgs/msg/Odometry"](header=header, child_frame_id=child,
+                                          pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=p, covariance=np.zeros(36)),
+                                          twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                                              twist=T["geometry_msgs/msg/Twist"](linear=zero, angular=zero),
+                                              covariance=np.zeros(36)))
+
+    robot = tmp_path / "robot"
+    with Reader(raw_bag) as r, Writer(robot, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections
+                 if c.topic != "/ground_truth/pose"}
+        gt = w.add_connection("/ground_truth/odom", "nav_msgs/msg/Odometry", typestore=ts)
+        wheels = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
+        goal = w.add_connection("/goal_pose", "geometry_msgs/msg/PoseStamped", typestore=ts)
+        for c, t, raw in r.messages():
+            if c.topic != "/ground_truth/pose":
+                w.write(conns[c.id], t, raw)
+                continue
+            msg = ts.deserialize_cdr(raw, c.msgtype)
+            body = pose_from_msg(msg) @ np.linalg.inv(cam_in_body)
+            w.write(gt, t, ts.serialize_cdr(odometry(msg.header, body, "base_link"), "nav_msgs/msg/Odometry"))
+            w.write(wheels, t, ts.serialize_cdr(odometry(msg.header, np.eye(4), "base_link"), "nav_msgs/msg/Odometry"))
+            w.write(goal, t, ts.serialize_cdr(msg, c.msgtype))
+    runs = {}
+    place = " ".join(map(str, [0.3, 0.0, 0.5, *q]))
+    for name, bag, extra in (("exact", raw_bag, []), ("body", robot, []), ("camera", robot, ["--gt-camera", place])):
+        r, runs[name] = replay_json(bag, tmp_path, *extra, name=name)
+        assert r.returncode == 0, r.stderr
+        runs[name]["log"] = r.stdout
+    keys = ("scored_pairs", "median_rot_deg", "median_trans_deg", "auc5", "auc10", "auc20")
+    assert [runs["camera"][k] for k in keys] == pytest.approx([runs["exact"][k] for k in keys]), runs
+    assert runs["body"]["scored_pairs"] == 5 and runs["body"]["median_trans_deg"] > 10 * runs["exact"]["median_trans_deg"]
+    assert ("not taken as ground truth: /goal_pose [geometry_msgs/msg/PoseStamped], /odom [nav_msgs/msg/Odometry] (the name "
+            "does not say so)") in runs["body"]["log"]
+    r = nmnet("replay", str(robot), "--out", str(tmp_path / "none.mcap"), "--gt-camera", "0.3 0 0.5")
+    assert r.returncode == 2 and "--gt-camera: '0.3 0 0.5': expected 'x y z qx qy qz qw'" in r.stderr, r.stderr
 
 
 def two_camera_bag(src: Path, dst: Path) -> None:
