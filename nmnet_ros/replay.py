@@ -475,6 +475,8 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     finally:
         out.close()
         signal.signal(signal.SIGTERM, old)
+        for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
+            print(f"warning: {w}")
     wall = time.perf_counter() - t0
     lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
     processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result

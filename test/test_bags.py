@@ -670,6 +670,9 @@ def test_ground_truth_of_a_tracked_body_scores_the_camera_with_its_place_on_the_
             "does not say so)") in runs["body"]["log"]
     r = nmnet("replay", str(robot), "--out", str(tmp_path / "none.mcap"), "--gt-camera", "0.3 0 0.5")
     assert r.returncode == 2 and "--gt-camera: '0.3 0 0.5': expected 'x y z qx qy qz qw'" in r.stderr, r.stderr
+    r, live = replay_json(robot, tmp_path, "--live", "--rate", "0.3", "--gt-camera", place, name="live")  # as --live scores
+    assert r.returncode == 0 and "not taken as ground truth: /goal_pose" in r.stdout, r.stdout + r.stderr
+    assert live["scored_pairs"] >= 3 and live["median_trans_deg"] < 2 and live["median_rot_deg"] < 0.5, live
 
 
 def two_camera_bag(src: Path, dst: Path) -> None:
