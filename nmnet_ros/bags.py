@@ -400,6 +400,32 @@ def pick_topic(topics: dict[str, str], types: tuple[str, ...], what: str, wanted
     raise BagError(f"several {what} topics ({', '.join(sorted(found))}); choose one with --{what}-topic. Bag topics: {listing}")
 
 
+TRANSPORTS = ("compressed", "compressedDepth", "theora", "zstd", "ffmpeg", "h264")  # image_transport's sub-topics
+
+
+def image_base(topic: str) -> str:
+    """The image topic a transport's sub-topic carries (/cam/image_raw/compressed -> /cam/image_raw)."""
+    head, _, last = topic.rstrip("/").rpartition("/")
+    return head if last in TRANSPORTS and head else topic
+
+
+def camera_namespace(topic: str) -> str:
+    """The namespace of an image topic's camera, where its camera_info lives (/cam/image_raw/compressed -> /cam), as
+    image_transport's camera subscriber finds it."""
+    return image_base(topic).rpartition("/")[0] or "/"
+
+
+def pick_image(topics: dict[str, str], wanted: str | None) -> tuple[str | None, str | None]:
+    """The image topic (``wanted``, else the only one, else the raw one of one camera recorded with its transports
+    too, as image_transport republishes it) and a note when a choice was made."""
+    found = sorted(t for t, m in topics.items() if m in IMAGE_TYPES)
+    bases = {image_base(t) for t in found}
+    if wanted is None and len(found) > 1 and len(bases) == 1 and (raw := bases.pop()) in found:
+        others = ", ".join(t for t in found if t != raw)
+        return raw, f"image topic {raw} taken, not the same frames on {others} (choose with --image-topic)"
+    return pick_topic(topics, IMAGE_TYPES, "image", wanted), None
+
+
 GT_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped", "nav_msgs/msg/Odometry",
             "geometry_msgs/msg/TransformStamped")  # what a ground-truth topic may carry
 GT_NAMES = ("ground_truth", "groundtruth", "vicon", "mocap", "optitrack", "qualisys", "vrpn", "leica")  # and be called
@@ -453,14 +479,17 @@ def decode_image_msg(msg: Any, msgtype: str) -> np.ndarray:
 
 def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
                   gt_topic: str | None = None) -> dict[str, str | None]:
-    """The image, camera_info and ground-truth topics to read (the ones named, else the only one of each type; for
-    ground truth, of those named so: :func:`looks_like_ground_truth`).
+    """The image, camera_info and ground-truth topics to read: the ones named, else the only one of each type (of one
+    camera's image and its transports, the raw one; of several camera_info topics, the one beside the image, as
+    image_transport pairs them; for ground truth, of the topics named so: :func:`looks_like_ground_truth`).
 
     BagError, listing the bag's topics, when there is no image topic, a named one is missing or of another
     type, or a type has several topics and none is named.
     """
     topics = reader.topics
-    img_t = pick_topic(topics, IMAGE_TYPES, "image", image_topic)
+    img_t, note = pick_image(topics, image_topic)
+    if note:
+        reader.warnings.append(note)
     if img_t is None:
         listing = ", ".join(f"{t} [{m}]" for t, m in sorted(topics.items())) or "none"
         damage = f"; reading stopped at {reader.damage}: the file is damaged or cut short" if reader.damage else ""
@@ -468,8 +497,11 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
     gt_t, note = pick_ground_truth(topics, gt_topic)
     if note:
         reader.warnings.append(note)
-    return {"image": img_t, "camera_info": pick_topic(topics, ("sensor_msgs/msg/CameraInfo",), "info", info_topic),
-            "ground_truth": gt_t}
+    infos = [t for t, m in topics.items() if m == "sensor_msgs/msg/CameraInfo"]
+    sibling = f"{camera_namespace(img_t)}/camera_info".replace("//", "/")
+    info_t = sibling if info_topic is None and len(infos) > 1 and sibling in infos else \
+        pick_topic(topics, ("sensor_msgs/msg/CameraInfo",), "info", info_topic)
+    return {"image": img_t, "camera_info": info_t, "ground_truth": gt_t}
 
 
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,

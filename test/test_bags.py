@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nmnet_ros.bags import BagError, BagReader, bag_ground_truth, make_bag, pose_from_msg, read_frames, typestore
+from nmnet_ros.bags import BagError, BagReader, bag_ground_truth, choose_topics, make_bag, pose_from_msg, read_frames, typestore
 from nmnet_ros.demo import SAMPLE_BAG
 
 from .conftest import ROOT, data_dir
@@ -713,6 +713,56 @@ def test_the_image_topic_is_chosen_offline_and_live_and_a_bad_choice_stops_befor
         s = json.loads((tmp_path / "s.json").read_text())
         assert s["frames"] == 6 and s["processed"] == 6 and s["auc5"] > 80, (mode, s)
         out.unlink()
+
+
+def camera_bag(src: Path, dst: Path, topics: dict[str, str]) -> None:
+    """``src``'s frames and camera_info on each of ``topics`` (name -> Image, CompressedImage or CameraInfo), as a
+    camera driver with image_transport (raw and /compressed) or a stereo pair records them."""
+    import cv2
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+
+    from nmnet_ros.imgconv import image_to_array
+
+    ts = typestore()
+    with Reader(src) as r, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = {t: w.add_connection(t, f"sensor_msgs/msg/{m}", typestore=ts) for t, m in topics.items()}
+        for c, t, raw in r.messages():
+            msg = ts.deserialize_cdr(raw, c.msgtype)
+            kind = c.msgtype.rpartition("/")[2]
+            for topic, m in topics.items():
+                if m == kind:
+                    w.write(conns[topic], t, raw)
+                elif m == "CompressedImage" and kind == "Image":
+                    img = image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data)
+                    jpeg = np.frombuffer(cv2.imencode(".jpg", img)[1].tobytes(), np.uint8)
+                    out = ts.types["sensor_msgs/msg/CompressedImage"](header=msg.header, format="jpeg", data=jpeg)
+                    w.write(conns[topic], t, ts.serialize_cdr(out, "sensor_msgs/msg/CompressedImage"))
+
+
+def test_one_cameras_transports_and_a_stereo_pairs_camera_info_are_told_apart(raw_bag, tmp_path):
+    """A driver with image_transport records each frame raw and on /compressed: the raw topic is taken, and said so
+    (the replay asked to choose between the same frames). Of a stereo pair's two camera_info topics, the one beside
+    the chosen image is taken, as image_transport pairs them (the replay asked for --info-topic too)."""
+    mono = tmp_path / "mono"
+    camera_bag(raw_bag, mono, {"/cam/image_raw": "Image", "/cam/image_raw/compressed": "CompressedImage",
+                               "/cam/camera_info": "CameraInfo"})
+    r, s = replay_json(mono, tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert ("image topic /cam/image_raw taken, not the same frames on /cam/image_raw/compressed (choose with "
+            "--image-topic)") in r.stdout and s["processed"] == 6, (r.stdout, s)
+    stereo = tmp_path / "stereo"
+    camera_bag(raw_bag, stereo, {"/left/image_raw": "Image", "/left/image_raw/compressed": "CompressedImage",
+                                 "/left/camera_info": "CameraInfo", "/right/image_raw": "Image",
+                                 "/right/camera_info": "CameraInfo"})
+    reader = BagReader(stereo)
+    with pytest.raises(BagError, match=r"several image topics \(/left/image_raw, /left/image_raw/compressed, /right/"):
+        choose_topics(reader)
+    for image, info in (("/right/image_raw", "/right/camera_info"), ("/left/image_raw/compressed", "/left/camera_info")):
+        assert choose_topics(reader, image_topic=image)["camera_info"] == info
+    assert choose_topics(reader, "/right/image_raw", "/left/camera_info")["camera_info"] == "/left/camera_info"
+    r, s = replay_json(stereo, tmp_path, "--image-topic", "/right/image_raw", "--gt",
+                       str(data_dir("kitti-07") / "groundtruth.txt"), name="right")
+    assert r.returncode == 0 and s["processed"] == 6 and s["auc5"] > 80, (r.stderr, s)
 
 
 def test_frames_resized_from_their_calibration_get_k_scaled(raw_bag, tmp_path):
