@@ -1,8 +1,8 @@
-"""Bags: sequence folders -> ROS 1 .bag / ROS 2 .db3 / .mcap, and frames out of any of them.
+"""Bags in: frames, calibration and ground truth out of a ROS 1 .bag, a ROS 2 .db3 or .mcap (file or directory).
 
-Writing and reading go through ``rosbags`` (typestore, writers, AnyReader); .mcap input is read
-record by record with ``mcap``'s stream reader so that a truncated file still yields its
-readable part (every file of a ROS 2 bag split into several). No ROS installation is needed.
+Reading goes through ``rosbags`` (typestore, AnyReader); .mcap input is read record by record with ``mcap``'s
+stream reader so that a truncated file still yields its readable part (every file of a ROS 2 bag split into
+several). Writing a sequence folder as a bag is :mod:`nmnet_ros.make_bag`. No ROS installation is needed.
 """
 
 from __future__ import annotations
@@ -13,22 +13,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import yaml
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import get_types_from_msg
 from rosbags.typesys.store import Typestore
 
-from .caminfo import camera_from_info, info_fields
-from .datasets import Sequence, Trajectory, quat_to_rot
+from .caminfo import camera_from_info
+from .datasets import Trajectory, quat_to_rot
 from .geometry import Camera, CameraError
-from .imgconv import IMAGE_TYPES, ImageError, array_to_image_fields, decode_compressed, image_to_array
-from .posemsg import rot_to_quat
-
-TOPICS = {"image": "/camera/image_raw", "compressed": "/camera/image_raw/compressed", "info": "/camera/camera_info",
-          "gt": "/ground_truth/pose", "tf": "/tf"}
-FORMATS = ("mcap", "sqlite3", "ros1")
+from .imgconv import IMAGE_TYPES, ImageError, decode_compressed, image_to_array
 
 
 class BagError(ValueError):
@@ -42,89 +36,6 @@ def typestore(ros1: bool = False) -> Typestore:
     ts = get_typestore(Stores.ROS1_NOETIC)
     ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
     return ts
-
-
-def _stamp(ts, t: float):
-    sec = int(np.floor(t))
-    return ts.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000)
-
-
-def _header(ts, t: float, frame_id: str, ros1: bool, seq: int = 0):
-    H = ts.types["std_msgs/msg/Header"]
-    return H(seq=seq, stamp=_stamp(ts, t), frame_id=frame_id) if ros1 else H(stamp=_stamp(ts, t), frame_id=frame_id)
-
-
-def _messages_for_frame(ts, seq: Sequence, i: int, compressed: bool, ros1: bool) -> list[tuple[str, str, object]]:
-    """(topic, msgtype, message) of frame i: image, camera_info and ground truth when known."""
-    t = float(seq.stamps[i])
-    hdr = _header(ts, t, "camera", ros1, i)
-    img = seq.image(i)
-    out = []
-    if compressed:
-        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])
-        msg = ts.types["sensor_msgs/msg/CompressedImage"](header=hdr, format="jpeg", data=buf.ravel())
-        out.append((TOPICS["compressed"], "sensor_msgs/msg/CompressedImage", msg))
-    else:
-        f = array_to_image_fields(img)
-        f["data"] = np.frombuffer(f["data"], np.uint8)
-        out.append((TOPICS["image"], "sensor_msgs/msg/Image", ts.types["sensor_msgs/msg/Image"](header=hdr, **f)))
-    Roi = ts.types["sensor_msgs/msg/RegionOfInterest"]
-    info = ts.types["sensor_msgs/msg/CameraInfo"](
-        header=hdr, **info_fields(seq.camera, img.shape[1], img.shape[0], ros1),
-        binning_x=0, binning_y=0, roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
-    out.append((TOPICS["info"], "sensor_msgs/msg/CameraInfo", info))
-    if seq.has_pose(i):
-        T = seq.poses[i]
-        q = rot_to_quat(T[:3, :3])
-        P_ = ts.types["geometry_msgs/msg/Point"](x=T[0, 3], y=T[1, 3], z=T[2, 3])
-        Q_ = ts.types["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])
-        pose = ts.types["geometry_msgs/msg/PoseStamped"](header=_header(ts, t, "world", ros1, i),
-                                                         pose=ts.types["geometry_msgs/msg/Pose"](position=P_, orientation=Q_))
-        out.append((TOPICS["gt"], "geometry_msgs/msg/PoseStamped", pose))
-        V_ = ts.types["geometry_msgs/msg/Vector3"](x=T[0, 3], y=T[1, 3], z=T[2, 3])
-        tf = ts.types["geometry_msgs/msg/TransformStamped"](
-            header=_header(ts, t, "world", ros1, i), child_frame_id="camera_gt",
-            transform=ts.types["geometry_msgs/msg/Transform"](translation=V_, rotation=Q_))
-        out.append((TOPICS["tf"], "tf2_msgs/msg/TFMessage", ts.types["tf2_msgs/msg/TFMessage"](transforms=[tf])))
-    return out
-
-
-def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed: bool = False,
-             frames: range | None = None) -> int:
-    """Write a sequence folder as a bag; returns the number of frames written.
-
-    ``mcap``/``sqlite3``: a ROS 2 bag directory (as ``ros2 bag record -o OUT``); ``ros1``: a .bag file.
-    """
-    if fmt not in FORMATS:
-        raise BagError(f"unknown bag format {fmt!r}; use one of {', '.join(FORMATS)}")
-    seq = Sequence.load(seq_dir)
-    out = Path(out)
-    if out.exists():
-        raise BagError(f"{out} exists already; choose a new output path")
-    ros1 = fmt == "ros1"
-    if ros1 and out.suffix != ".bag":
-        raise BagError(f"{out}: a ROS 1 bag is one file and is read by its .bag extension; name it {out.name}.bag")
-    ts = typestore(ros1)
-    idx = list(seq.frames(frames))
-    if ros1:
-        from rosbags.rosbag1 import Writer as Writer1
-
-        writer = Writer1(out)
-    else:
-        from rosbags.rosbag2 import StoragePlugin
-        from rosbags.rosbag2 import Writer as Writer2
-
-        plugin = StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3
-        writer = Writer2(out, version=9, storage_plugin=plugin)
-    serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
-    conns: dict[str, object] = {}
-    with writer:
-        for i in idx:
-            for topic, mtype, msg in _messages_for_frame(ts, seq, i, compressed, ros1):
-                if topic not in conns:
-                    conns[topic] = writer.add_connection(topic, mtype, typestore=ts)
-                writer.write(conns[topic], int(round(float(seq.stamps[i]) * 1e9)), serialize(msg, mtype))
-    return len(idx)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 import yaml
 
-from nmnet_ros.bags import BagError, BagReader, bag_ground_truth, choose_topics, make_bag, pose_from_msg, read_frames, typestore
+from nmnet_ros.bags import BagError, BagReader, bag_ground_truth, choose_topics, pose_from_msg, read_frames, typestore
 from nmnet_ros.demo import SAMPLE_BAG
+from nmnet_ros.make_bag import make_bag
 
 from .conftest import ROOT, data_dir
 

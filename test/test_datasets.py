@@ -30,7 +30,7 @@ def test_static_camera_pairs_are_excluded():
 def test_a_frame_range_outside_the_folder_is_named(tmp_path):
     """'PATH:a-b' past the last frame (or with a > b) is an error naming the folder's frames, not an IndexError
     (eval, train; make-bag before it writes anything)."""
-    from nmnet_ros.bags import make_bag
+    from nmnet_ros.make_bag import make_bag
 
     with pytest.raises(DatasetError, match="frames 157-999 are not all in the folder; it has frames 0-159"):
         make_bag(data_dir("kitti-07"), tmp_path / "b", "mcap", frames=range(157, 1000))
@@ -72,8 +72,9 @@ def test_frames_the_ground_truth_does_not_cover_are_left_out_not_given_another_f
     """A groundtruth.txt without a pose at some image's stamp (a tracker that lost the camera): that frame has no
     pose, its pairs are not selected for eval/train, a bag made from the folder has no ground truth for it, and a
     file whose stamps match no image is refused, naming it."""
-    from nmnet_ros.bags import TOPICS, BagReader, make_bag
+    from nmnet_ros.bags import BagReader
     from nmnet_ros.evaluate import load_eval_pairs
+    from nmnet_ros.make_bag import TOPICS, make_bag
     from nmnet_ros.train import load_pairs
 
     src = data_dir("strecha-entry-p10")
