@@ -132,6 +132,23 @@ def _check_signature(path: Path, kind: str) -> None:
                    ".mcap file")
 
 
+def _summary_topics(path: Path) -> tuple[dict[str, str], bool] | None:
+    """An .mcap's topics (and whether any carries ROS 1 messages) from its summary section, read from the end of the
+    file without reading the rest; None when it has none (a file cut short, a writer that wrote none)."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as fh:
+            summary = make_reader(fh).get_summary()
+    except Exception:  # noqa: BLE001 - truncated or damaged: the caller streams the file instead
+        return None
+    if summary is None or not summary.channels:
+        return None
+    schemas = {i: _ros2_name(sc.name) for i, sc in summary.schemas.items()}
+    return ({ch.topic: schemas.get(ch.schema_id, "") for ch in summary.channels.values()},
+            any(ch.message_encoding == "ros1" for ch in summary.channels.values()))
+
+
 class BagReader:
     """Messages of a .bag/.db3/.mcap (file or ROS 2 directory, every split file of it) in log-time order.
 
@@ -169,6 +186,10 @@ class BagReader:
 
             topics = {}
             for file in self.files:
+                if (listed := _summary_topics(file)) is not None:  # an intact file's summary: no need to read it all
+                    topics.update(listed[0])
+                    self.ros1 |= listed[1]
+                    continue
                 schemas: dict[int, str] = {}
                 try:
                     with open(file, "rb") as fh:

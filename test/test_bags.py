@@ -114,6 +114,20 @@ def test_a_damaged_bag_read_twice_is_reported_once(tmp_path):
     assert counts[0] == counts[2] > 0 and len(counts[1]) == 1 and "truncated" in counts[1][0] and counts[3] == [], counts
 
 
+def test_an_intact_mcap_lists_its_topics_from_its_summary_and_a_cut_one_by_reading_it(tmp_path):
+    """Opening a bag lists its topics from the .mcap's summary section at the file's end (a long recording is not
+    read whole just for that); a file cut short has none, and is read for what it holds."""
+    from nmnet_ros.bags import _summary_topics
+
+    src = next(SAMPLE_BAG.glob("*.mcap"))
+    listed = _summary_topics(src)
+    assert listed is not None and not listed[1] and listed[0] == BagReader(SAMPLE_BAG).topics
+    assert "/camera/image_raw/compressed" in listed[0]
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(src.read_bytes()[: src.stat().st_size // 3])
+    assert _summary_topics(cut) is None and "/camera/image_raw/compressed" in BagReader(cut).topics
+
+
 def test_truncated_db3_reports_and_uses_readable_part(tmp_path):
     bag = tmp_path / "full"
     assert make_bag(data_dir("kitti-07"), bag, "sqlite3", compressed=True, frames=range(0, 30)) == 30
