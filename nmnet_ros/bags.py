@@ -83,7 +83,7 @@ def _bag_files(path: Path) -> tuple[str, list[Path], list[str]]:
     """The bag's kind (mcap, db3, bag), its storage files in recording order and what is amiss with them:
     ``path`` itself, or every file of a ROS 2 bag directory (split by ``ros2 bag record --max-bag-size`` or
     ``--max-bag-duration``; ``.zstd`` when recorded with ``--compression-mode file``) in its metadata.yaml's
-    order, else by name."""
+    order, else by name; or the .bag files of a folder (a ROS 1 recording split by ``rosbag record --split``)."""
     if not path.is_dir():
         if path.suffix in (".mcap", ".db3", ".bag"):
             return path.suffix[1:], [path], []
@@ -106,7 +106,10 @@ def _bag_files(path: Path) -> tuple[str, list[Path], list[str]]:
         missing = [f for f in listed if not f.exists()]
         notes = [f"{f}: listed in {path / 'metadata.yaml'} but missing; the bag's other files are read" for f in missing]
         return kind, [f for f in listed if f.exists()] or found or zipped, notes
-    raise BagError(f"{path}: directory holds no .mcap or .db3 file")
+    if parts := sorted(path.glob("*.bag"), key=_natural):  # a ROS 1 recording split by `rosbag record --split`
+        note = f"{path}: its {len(parts)} ROS 1 bags are read as one recording, merged in time"
+        return "bag", parts, [note] if len(parts) > 1 else []
+    raise BagError(f"{path}: directory holds no .mcap, .db3 or .bag file")
 
 
 SIGNATURES = {"mcap": b"\x89MCAP0\r\n", "db3": b"SQLite format 3\0", "bag": b"#ROSBAG V2.0",  # how each begins
@@ -168,6 +171,7 @@ class BagReader:
         meta = _metadata(self.path) if self.path.is_dir() else None
         compressed = str((meta or {}).get("compression_mode") or "none").lower() != "none"  # file or message mode
         self._streamed = self.kind == "mcap" and not compressed
+        self._sources = self.files if self.kind == "bag" else [self.path]  # what rosbags opens: ROS 1 bags one by one
         self.damage: str | None = None  # what stopped the topic listing short (an .mcap cut before its channels)
         self._told: set[str] = set()
         self._salvaged: list[_Db3Salvage] = []
@@ -205,7 +209,7 @@ class BagReader:
         from rosbags.highlevel import AnyReader
 
         try:
-            with AnyReader([self.path], default_typestore=typestore()) as r:
+            with AnyReader(self._sources, default_typestore=typestore()) as r:
                 return {c.topic: c.msgtype for c in r.connections}
         except Exception as e:  # noqa: BLE001 - rosbags raises several types
             if self.kind == "db3" and self.files[0].suffix == ".db3":
@@ -229,7 +233,7 @@ class BagReader:
             return
         from rosbags.highlevel import AnyReader
 
-        with AnyReader([self.path], default_typestore=typestore()) as r:
+        with AnyReader(self._sources, default_typestore=typestore()) as r:
             conns = [c for c in r.connections if c.topic in topics]
             try:
                 for c, t, raw in r.messages(connections=conns):

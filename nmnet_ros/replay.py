@@ -300,7 +300,8 @@ def print_scores(s: dict) -> None:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet replay``."""
-    p.add_argument("bag", type=Path, help=".bag, .db3 or .mcap file, or a ROS 2 bag directory")
+    p.add_argument("bag", type=Path, help=".bag, .db3 or .mcap file, a ROS 2 bag directory, or a folder of a ROS 1 "
+                   "recording's parts (rosbag record --split)")
     p.add_argument("--out", type=Path, required=True, help="output .mcap with matches and relative poses")
     p.add_argument("--gt", type=Path, default=None, help="ground truth as a TUM file (else the bag's ground-truth topic, "
                    "if any)")

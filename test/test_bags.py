@@ -215,6 +215,21 @@ def test_every_file_of_a_split_or_compressed_ros2_bag_is_read_in_recording_order
     assert json.loads((tmp_path / "s.json").read_text())["processed"] == 9
 
 
+def test_a_folder_of_ros1_bag_parts_replays_as_one_recording(tmp_path):
+    """``rosbag record --split`` leaves run_0.bag, run_1.bag, ...: their folder replays as one recording, merged in
+    time and said so (a folder was refused as holding no .mcap or .db3 file, so each part replayed on its own)."""
+    parts = tmp_path / "split"
+    parts.mkdir()
+    for k in range(3):
+        assert make_bag(data_dir("kitti-07"), parts / f"run_{k}.bag", "ros1", frames=range(3 * k, 3 * k + 3)) == 3
+    stamps = np.loadtxt(data_dir("kitti-07") / "images.txt", usecols=0)[:9]
+    reader = BagReader(parts)
+    np.testing.assert_allclose([f.stamp for f in read_frames(reader)[0]], stamps, atol=1e-6)
+    assert reader.new_warnings() == [f"{parts}: its 3 ROS 1 bags are read as one recording, merged in time"]
+    r, s = replay_json(parts, tmp_path, "--detector", "sift", "--selector", "ratio+magsac")
+    assert r.returncode == 0 and s["processed"] == 9 and s["scored_pairs"] == 8, (r.stderr, s)
+
+
 def test_an_mcap_converted_from_a_ros1_bag_reads_as_the_bag(bags, tmp_path):
     """``mcap convert x.bag x.mcap`` keeps ROS 1 schemas (ros1msg, sensor_msgs/Image) and ROS 1 serialisation: the
     frames are those of the .bag (the reader found "no sensor_msgs/Image or CompressedImage topic", listing
