@@ -319,9 +319,14 @@ class _Db3Salvage:
             warnings.append(f"{self.path}: truncated or damaged after {n} messages ({e}); the readable part was used")
 
 
+def _listing(topics: dict[str, str]) -> str:
+    """A bag's topics with their types, for the errors that ask to choose among them."""
+    return ", ".join(f"{t} [{m}]" for t, m in sorted(topics.items())) or "none"
+
+
 def pick_topic(topics: dict[str, str], types: tuple[str, ...], what: str, wanted: str | None) -> str | None:
     """The one topic of ``types`` (or ``wanted``); a clear error listing the topics otherwise."""
-    listing = ", ".join(f"{t} [{m}]" for t, m in sorted(topics.items())) or "none"
+    listing = _listing(topics)
     if wanted:
         if wanted not in topics:
             raise BagError(f"topic {wanted} not in the bag; it has: {listing}")
@@ -381,7 +386,10 @@ def pick_ground_truth(topics: dict[str, str], wanted: str | None) -> tuple[str |
     if wanted:
         return pick_topic(topics, GT_TYPES, "gt", wanted), None
     poses = sorted(t for t, m in topics.items() if m in GT_TYPES)
-    chosen = pick_topic({t: topics[t] for t in poses if looks_like_ground_truth(t)}, GT_TYPES, "gt", None)
+    named = [t for t in poses if looks_like_ground_truth(t)]
+    if len(named) > 1:
+        raise BagError(f"several gt topics ({', '.join(named)}); choose one with --gt-topic. Bag topics: {_listing(topics)}")
+    chosen = named[0] if named else None
     others = [f"{t} [{topics[t]}]" for t in poses if t != chosen]
     return chosen, (f"not taken as ground truth: {', '.join(others)} (the name does not say so); name one with --gt-topic "
                     "to score against it (the camera's pose; --gt-camera for a tracked body)") if others else None
@@ -427,7 +435,7 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
     if note:
         reader.warnings.append(note)
     if img_t is None:
-        listing = ", ".join(f"{t} [{m}]" for t, m in sorted(topics.items())) or "none"
+        listing = _listing(topics)
         damage = f"; reading stopped at {reader.damage}: the file is damaged or cut short" if reader.damage else ""
         raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}{damage}")
     gt_t, note = pick_ground_truth(topics, gt_topic)

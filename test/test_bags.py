@@ -646,6 +646,24 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
     assert says in capsys.readouterr().err
 
 
+def test_a_pose_topic_is_ground_truth_by_itself_only_when_its_name_says_so():
+    """Motion-capture and simulator names are taken; a robot's other poses are not; two named ones ask for a choice,
+    listing the whole bag."""
+    from nmnet_ros.bags import looks_like_ground_truth, pick_ground_truth
+
+    for topic in ("/ground_truth/pose", "/groundtruth", "/gt", "/robot/gt/odom", "/vicon/drone/drone", "/mocap/rb1/pose",
+                  "/vrpn_mocap/robot/pose", "/optitrack/robot", "/leica/position"):
+        assert looks_like_ground_truth(topic), topic
+    for topic in ("/odom", "/goal_pose", "/amcl_pose", "/length/pose", "/target", "/camera/pose"):
+        assert not looks_like_ground_truth(topic), topic
+    pose, odom = "geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry"
+    assert pick_ground_truth({"/odom": odom, "/camera/image_raw": "sensor_msgs/msg/Image"}, None)[0] is None
+    assert pick_ground_truth({"/odom": odom}, "/odom") == ("/odom", None)  # named: any pose topic
+    with pytest.raises(BagError, match=r"several gt topics \(/ground_truth/odom, /ground_truth/pose\); choose one with "
+                                       r"--gt-topic. Bag topics: /goal_pose \[geometry_msgs/msg/PoseStamped\], /ground"):
+        pick_ground_truth({"/ground_truth/pose": pose, "/ground_truth/odom": odom, "/goal_pose": pose}, None)
+
+
 def test_ground_truth_of_a_tracked_body_scores_the_camera_with_its_place_on_the_body(raw_bag, tmp_path):
     """A robot's bag: ground truth as nav_msgs/Odometry of base_link (x forward, z up) on /ground_truth/odom, beside
     wheel odometry on /odom and nav2's /goal_pose. The topic named as ground truth is taken, the others are named as
