@@ -83,19 +83,24 @@ def to_gray_float(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(img, dtype=np.float32) / np.float32(full_scale(image))
 
 
+SENSOR_BITS = (8, 10, 12, 14, 16)  # the bit depths cameras deliver in 16-bit containers
+
+
 def full_scale(image: np.ndarray) -> float:
     """The value of white: 255 for uint8, 1 for float; for uint16 the top of the bits in use.
 
     A 10-, 12- or 14-bit camera publishes mono16 with white at 1023, 4095 or 16383; read as 16 bits
     its frames would be 16-64x too dark for the detectors' contrast thresholds (SIFT found no
     keypoints on a 12-bit KITTI frame). So a uint16 image is scaled by 2**b - 1 for the smallest
-    b >= 8 holding its brightest pixel.
+    sensor depth b (:data:`SENSOR_BITS`) holding its brightest pixel: one camera's frames share a scale
+    whatever their exposure (any bit count would scale a 12-bit frame peaking at 2000 by 2047 and the
+    next, peaking at 3000, by 4095), unless a frame stays below a quarter of the camera's range.
     """
     if image.dtype == np.uint8:
         return 255.0
     if image.dtype == np.uint16:
         peak = int(image.max()) if image.size else 0
-        return float(2 ** max(8, peak.bit_length()) - 1)
+        return float(2 ** next(b for b in SENSOR_BITS if peak < 2**b) - 1)
     return 1.0
 
 

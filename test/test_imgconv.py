@@ -100,3 +100,14 @@ def test_a_12_bit_camera_in_mono16_gives_the_features_of_its_8_bit_frame(name):
     eight, deep = det(gray), det(twelve)
     assert len(eight.keypoints) > 500
     assert abs(len(deep.keypoints) - len(eight.keypoints)) <= 0.02 * len(eight.keypoints)
+
+
+def test_one_cameras_16_bit_frames_share_a_scale_whatever_their_exposure():
+    """A 12-bit camera's frames peaking at 1500, 2000 or 4095 are all scaled by 4095 (by the bits in use, a frame
+    peaking at 2000 was scaled by 2047, twice the next one's contrast); 8-bit data in 16 bits keeps 255."""
+    from nmnet_ros.features import full_scale
+
+    for peak, white in ((1500, 4095), (2000, 4095), (3000, 4095), (4095, 4095), (1000, 1023), (200, 255), (16000, 16383),
+                        (65535, 65535)):
+        assert full_scale(np.array([[0, peak]], np.uint16)) == white, peak
+    assert full_scale(np.zeros((2, 2), np.uint16)) == 255 and full_scale(np.zeros((2, 2), np.uint8)) == 255
