@@ -493,3 +493,20 @@ def bag_ground_truth(reader: BagReader, topic: str | None) -> Trajectory | None:
     if not stamped:
         return None
     return Trajectory(np.array([t for t, _ in stamped]), np.array([T for _, T in stamped]))
+
+
+def tf_ground_truth(reader: BagReader, topic: str, parent: str, child: str) -> Trajectory:
+    """Ground truth from the ``parent`` -> ``child`` transforms on a TFMessage ``topic`` (a motion-capture system or
+    a simulator that publishes only /tf); BagError naming the transforms the topic has when none is that one."""
+    topic = pick_topic(reader.topics, ("tf2_msgs/msg/TFMessage",), "gt", topic)
+    want, seen, stamped = (parent.strip("/"), child.strip("/")), set(), []
+    for m in reader.messages({topic}):
+        for tf in m.msg.transforms:
+            edge = (tf.header.frame_id.strip("/"), tf.child_frame_id.strip("/"))
+            seen.add(edge)
+            if edge == want:
+                stamped.append((msg_time(tf), pose_from_msg(tf)))
+    if not stamped:
+        edges = ", ".join(f"{a}:{b}" for a, b in sorted(seen)[:20]) or "none"
+        raise BagError(f"--gt-tf {parent}:{child}: no such transform on {topic}; it has {edges}")
+    return Trajectory(np.array([t for t, _ in stamped]), np.array([T for _, T in stamped]))

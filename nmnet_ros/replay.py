@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bags import BagReader, bag_ground_truth, choose_topics, read_frames
+from .bags import BagReader, bag_ground_truth, choose_topics, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
@@ -312,7 +312,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots (default: next to --out)")
     p.add_argument("--image-topic", default=None)
     p.add_argument("--info-topic", default=None)
-    p.add_argument("--gt-topic", default=None)
+    p.add_argument("--gt-topic", default=None, help="the ground-truth topic (a pose, odometry or transform message; "
+                   "with --gt-tf, the TFMessage topic, default /tf)")
+    p.add_argument("--gt-tf", type=gt_frames, default=None, metavar="PARENT:CHILD",
+                   help="ground truth from /tf: the transforms from PARENT to CHILD (a motion-capture or simulator frame)")
     p.add_argument("--rectified", action="store_true", help="the bag's images are rectified (image_rect): use camera_info's "
                    "P, without distortion")
     p.add_argument("--camera", type=Path, default=None, help="calibration as a ROS camera_info YAML (what camera_calibration "
@@ -367,12 +370,25 @@ def gt_camera(text: str) -> np.ndarray:
         raise argparse.ArgumentTypeError(str(e)) from e
 
 
-def ground_truth(reader: BagReader, gt_tum: Trajectory | None, topics: dict[str, str | None],
-                 camera_in_body: np.ndarray | None = None) -> Trajectory | None:
-    """What the replay scores against: the ``--gt`` TUM file, else the bag's ground-truth topic (each looked up by
-    stamp within half its spacing), else nothing; moved to the camera by ``--gt-camera`` when it tracks a body."""
-    truth = gt_tum if gt_tum is not None else bag_ground_truth(reader, topics["ground_truth"])
-    return truth.moved(camera_in_body) if truth is not None and camera_in_body is not None else truth
+def gt_frames(text: str) -> tuple[str, str]:
+    """``--gt-tf``'s value, PARENT:CHILD, as two frame names."""
+    parent, sep, child = text.partition(":")
+    if not sep or not parent.strip("/") or not child.strip("/"):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected PARENT:CHILD, two frame names (e.g. world:robot)")
+    return parent, child
+
+
+def ground_truth(reader: BagReader, args: argparse.Namespace, topics: dict[str, str | None]) -> Trajectory | None:
+    """What the replay scores against: the ``--gt`` TUM file, else ``--gt-tf``'s transforms on /tf, else the bag's
+    ground-truth topic (each looked up by stamp within half its spacing), else nothing; moved to the camera by
+    ``--gt-camera`` when it tracks a body. A file or transform that is not there stops the replay, naming it."""
+    if args.gt is not None:
+        truth = read_tum(args.gt)
+    elif args.gt_tf is not None:
+        truth = tf_ground_truth(reader, args.gt_topic or "/tf", *args.gt_tf)
+    else:
+        truth = bag_ground_truth(reader, topics["ground_truth"])
+    return truth.moved(args.gt_camera) if truth is not None and args.gt_camera is not None else truth
 
 
 def main(args: argparse.Namespace) -> int:
@@ -380,9 +396,9 @@ def main(args: argparse.Namespace) -> int:
     reader = BagReader(args.bag)  # a missing or unreadable bag stops here
     params = node_params(args)  # a bad parameters file stops here, naming it
     camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
-    gt_tum = read_tum(args.gt) if args.gt else None  # likewise
     plots_dir = args.plots or args.out.parent
-    topics = {"image_topic": args.image_topic, "info_topic": args.info_topic, "gt_topic": args.gt_topic}
+    topics = {"image_topic": args.image_topic, "info_topic": args.info_topic,
+              "gt_topic": None if args.gt_tf else args.gt_topic}  # with --gt-tf, --gt-topic names the TFMessage topic
     if args.live:
         from .live import live_topics, require_ros
 
@@ -393,9 +409,10 @@ def main(args: argparse.Namespace) -> int:
                              "replay without --live for the others")
         if params["weights"]:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
-        return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params,
-                         ground_truth(reader, gt_tum, chosen, args.gt_camera), chosen)
+        truth = ground_truth(reader, args, chosen)  # a bad --gt file or --gt-tf stops here too
+        return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params, truth, chosen)
     chosen = choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
+    truth = ground_truth(reader, args, chosen)  # likewise a bad --gt file or --gt-tf
     cfg = frontend_config(params)
     if args.selector is not None:
         cfg["selector"] = args.selector
@@ -403,7 +420,6 @@ def main(args: argparse.Namespace) -> int:
     base_fe = Frontend(None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
                               "resize_width": cfg["resize_width"]}) if args.baseline else None
     out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
-    truth = ground_truth(reader, gt_tum, chosen, args.gt_camera)
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:

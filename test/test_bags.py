@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nmnet_ros.bags import BagError, BagReader, bag_ground_truth, choose_topics, pose_from_msg, read_frames, typestore
+from nmnet_ros.bags import BagError, BagReader, bag_ground_truth, choose_topics, pose_from_msg, read_frames, tf_ground_truth, typestore
 from nmnet_ros.demo import SAMPLE_BAG
 from nmnet_ros.make_bag import make_bag
 
@@ -568,23 +568,31 @@ def test_replay_skips_frames_stamped_before_zero_and_still_writes_its_file(raw_b
 
 
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
-    """`--gt FILE` (TUM) gives the numbers the bag's own PoseStamped give, offline and in --live's scoring; a bad
-    file stops the replay before the output file is made, naming the file and line."""
+    """`--gt FILE` (TUM) and `--gt-tf world:camera_gt` (the bag's /tf) give the numbers the bag's own PoseStamped
+    give, offline and in --live's scoring; a bad file, or a transform the bag lacks, stops the replay before the output
+    file is made, naming the file and line or the transforms there are."""
     from nmnet_ros.datasets import read_tum
     from nmnet_ros.live import score_recording
 
     tum = data_dir("kitti-07") / "groundtruth.txt"  # the poses the bag was made with, at the frames' stamps
     runs = {}
-    for name, extra in (("bag", []), ("tum", ["--gt", str(tum)])):
+    for name, extra in (("bag", []), ("tum", ["--gt", str(tum)]), ("tf", ["--gt-tf", "world:camera_gt"])):
         r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / f"{name}.mcap"), "--json", str(tmp_path / f"{name}.json"),
                   "--no-progress", *extra)
         assert r.returncode == 0, r.stderr
         runs[name] = json.loads((tmp_path / f"{name}.json").read_text())
     keys = ("median_rot_deg", "median_trans_deg", "auc5", "auc10", "auc20")
     assert runs["bag"]["auc5"] > 80 and [runs["tum"][k] for k in keys] == pytest.approx([runs["bag"][k] for k in keys]), runs
+    assert [runs["tf"][k] for k in keys] == pytest.approx([runs["bag"][k] for k in keys]), runs  # make-bag's /tf: the same
+    for value, says in (("world:robot", "--gt-tf world:robot: no such transform on /tf; it has world:camera_gt"),
+                        ("world", "--gt-tf: 'world': expected PARENT:CHILD, two frame names")):
+        r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--gt-tf", value, "--no-progress")
+        assert r.returncode == 2 and says in r.stderr and not (tmp_path / "none.mcap").exists(), r.stderr
     own = bag_ground_truth(BagReader(raw_bag), "/ground_truth/pose")
-    live_scoring = [score_recording(tmp_path / "bag.mcap", gt) for gt in (own, read_tum(tum))]
+    tf = tf_ground_truth(BagReader(raw_bag), "/tf", "world", "camera_gt")
+    live_scoring = [score_recording(tmp_path / "bag.mcap", gt) for gt in (own, read_tum(tum), tf)]
     assert live_scoring[0]["scored_pairs"] == 4 and live_scoring[1] == pytest.approx(live_scoring[0])  # as --live scores
+    assert live_scoring[2] == pytest.approx(live_scoring[0])
     shifted = tmp_path / "shifted.txt"  # every pose a frame later: the errors change
     rows = [ln.split() for ln in tum.read_text().splitlines() if not ln.startswith("#")]
     shifted.write_text("".join(" ".join([a[0], *b[1:]]) + "\n" for a, b in zip(rows, rows[1:], strict=False)))
