@@ -135,21 +135,36 @@ def _check_signature(path: Path, kind: str) -> None:
                    ".mcap file")
 
 
-def _summary_topics(path: Path) -> tuple[dict[str, str], bool] | None:
-    """An .mcap's topics (and whether any carries ROS 1 messages) from its summary section, read from the end of the
-    file without reading the rest; None when it has none (a file cut short, a writer that wrote none)."""
+def _mcap_topics(path: Path) -> tuple[dict[str, str], bool, str | None]:
+    """An .mcap's topics, whether any carries ROS 1 messages, and what stopped the listing short (None when
+    nothing did): from the summary section at the file's end, without reading the rest, else (a file cut short
+    has none) record by record up to where it breaks."""
     from mcap.reader import make_reader
+    from mcap.records import Channel, Schema
+    from mcap.stream_reader import StreamReader
 
     try:
         with open(path, "rb") as fh:
             summary = make_reader(fh).get_summary()
-    except Exception:  # noqa: BLE001 - truncated or damaged: the caller streams the file instead
-        return None
-    if summary is None or not summary.channels:
-        return None
-    schemas = {i: _ros2_name(sc.name) for i, sc in summary.schemas.items()}
-    return ({ch.topic: schemas.get(ch.schema_id, "") for ch in summary.channels.values()},
-            any(ch.message_encoding == "ros1" for ch in summary.channels.values()))
+    except Exception:  # noqa: BLE001 - truncated or damaged: read it record by record below
+        summary = None
+    if summary is not None and summary.channels:
+        names = {i: _ros2_name(sc.name) for i, sc in summary.schemas.items()}
+        channels = list(summary.channels.values())
+        return ({ch.topic: names.get(ch.schema_id, "") for ch in channels},
+                any(ch.message_encoding == "ros1" for ch in channels), None)
+    names, topics, ros1 = {}, {}, False
+    try:
+        with open(path, "rb") as fh:
+            for rec in StreamReader(fh, skip_magic=False).records:
+                if isinstance(rec, Schema):
+                    names[rec.id] = _ros2_name(rec.name)
+                elif isinstance(rec, Channel):
+                    topics[rec.topic] = names.get(rec.schema_id, "")
+                    ros1 |= rec.message_encoding == "ros1"
+    except Exception as e:  # noqa: BLE001 - truncated/corrupt: keep what was read
+        return topics, ros1, f"{type(e).__name__} after {len(topics)} topics"
+    return topics, ros1, None
 
 
 class BagReader:
@@ -185,26 +200,12 @@ class BagReader:
 
     def _topics(self) -> dict[str, str]:
         if self._streamed:
-            from mcap.records import Channel, Schema
-            from mcap.stream_reader import StreamReader
-
-            topics = {}
+            topics: dict[str, str] = {}
             for file in self.files:
-                if (listed := _summary_topics(file)) is not None:  # an intact file's summary: no need to read it all
-                    topics.update(listed[0])
-                    self.ros1 |= listed[1]
-                    continue
-                schemas: dict[int, str] = {}
-                try:
-                    with open(file, "rb") as fh:
-                        for rec in StreamReader(fh, skip_magic=False).records:
-                            if isinstance(rec, Schema):
-                                schemas[rec.id] = _ros2_name(rec.name)
-                            elif isinstance(rec, Channel):
-                                topics[rec.topic] = schemas.get(rec.schema_id, "")
-                                self.ros1 |= rec.message_encoding == "ros1"
-                except Exception as e:  # noqa: BLE001 - truncated/corrupt: keep what was read
-                    self.damage = self.damage or f"{type(e).__name__} after {len(topics)} topics"
+                listed, ros1, damage = _mcap_topics(file)
+                topics.update(listed)
+                self.ros1 |= ros1
+                self.damage = self.damage or damage
             return topics
         from rosbags.highlevel import AnyReader
 

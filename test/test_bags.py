@@ -116,16 +116,21 @@ def test_a_damaged_bag_read_twice_is_reported_once(tmp_path):
 
 def test_an_intact_mcap_lists_its_topics_from_its_summary_and_a_cut_one_by_reading_it(tmp_path):
     """Opening a bag lists its topics from the .mcap's summary section at the file's end (a long recording is not
-    read whole just for that); a file cut short has none, and is read for what it holds."""
-    from nmnet_ros.bags import _summary_topics
-
+    read whole just for that: a file whose middle is garbage lists them all); a file cut short has no summary, and
+    is read record by record for what it holds."""
     src = next(SAMPLE_BAG.glob("*.mcap"))
-    listed = _summary_topics(src)
-    assert listed is not None and not listed[1] and listed[0] == BagReader(SAMPLE_BAG).topics
-    assert "/camera/image_raw/compressed" in listed[0]
+    data = bytearray(src.read_bytes())
+    full = BagReader(src)
+    assert "/camera/image_raw/compressed" in full.topics and full.damage is None
+    middle = tmp_path / "middle.mcap"
+    data[len(data) // 3: len(data) // 2] = bytes(len(data) // 2 - len(data) // 3)
+    middle.write_bytes(data)
+    listed = BagReader(middle)
+    assert listed.topics == full.topics and listed.damage is None
     cut = tmp_path / "cut.mcap"
-    cut.write_bytes(src.read_bytes()[: src.stat().st_size // 3])
-    assert _summary_topics(cut) is None and "/camera/image_raw/compressed" in BagReader(cut).topics
+    cut.write_bytes(data[: len(data) // 3])
+    streamed = BagReader(cut)
+    assert streamed.topics == full.topics and streamed.damage is not None
 
 
 def test_truncated_db3_reports_and_uses_readable_part(tmp_path):
