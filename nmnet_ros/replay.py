@@ -124,7 +124,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
                 rectified: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
     """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the last good image.
 
-    ``reader``: the bag, opened once (opening scans an .mcap whole) and read again for each pass.
+    ``reader``: the bag, opened once (opening lists its topics) and read again for each pass.
 
     ``truth``: the ground truth the frames are scored against (:func:`ground_truth`), by stamp; ``camera``: the
     calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.
