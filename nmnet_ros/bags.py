@@ -422,11 +422,10 @@ def decode_image_msg(msg: Any, msgtype: str) -> np.ndarray:
     return image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data, msg.is_bigendian)
 
 
-def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
-                  gt_topic: str | None = None) -> dict[str, str | None]:
-    """The image, camera_info and ground-truth topics to read: the ones named, else the only one of each type (of one
-    camera's image and its transports, the raw one; of several camera_info topics, the one beside the image, as
-    image_transport pairs them; for ground truth, of the topics named so: :func:`looks_like_ground_truth`).
+def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None) -> dict[str, str | None]:
+    """The image and camera_info topics to read: the ones named, else the only one of each type (of one camera's
+    image and its transports, the raw one; of several camera_info topics, the one beside the image, as
+    image_transport pairs them). Ground truth is chosen where it is read: :func:`bag_ground_truth`.
 
     BagError, listing the bag's topics, when there is no image topic, a named one is missing or of another
     type, or a type has several topics and none is named.
@@ -439,24 +438,21 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
         listing = _listing(topics)
         damage = f"; reading stopped at {reader.damage}: the file is damaged or cut short" if reader.damage else ""
         raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}{damage}")
-    gt_t, note = pick_ground_truth(topics, gt_topic)
-    if note:
-        reader.warnings.append(note)
     infos = [t for t, m in topics.items() if m == "sensor_msgs/msg/CameraInfo"]
     sibling = f"{camera_namespace(img_t)}/camera_info".replace("//", "/")
     info_t = sibling if info_topic is None and len(infos) > 1 and sibling in infos else \
         pick_topic(topics, ("sensor_msgs/msg/CameraInfo",), "info", info_topic)
-    return {"image": img_t, "camera_info": info_t, "ground_truth": gt_t}
+    return {"image": img_t, "camera_info": info_t}
 
 
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
-                gt_topic: str | None = None, rectified: bool = False) -> tuple[Iterator[Frame], dict[str, str | None]]:
+                rectified: bool = False) -> tuple[Iterator[Frame], dict[str, str | None]]:
     """Frames of a bag with auto-detected topics (ground truth: :func:`bag_ground_truth`); errors name the topics the
     bag has.
 
     ``rectified``: the images are rectified, so their camera is camera_info's P (see caminfo).
     """
-    chosen = choose_topics(reader, image_topic, info_topic, gt_topic)
+    chosen = choose_topics(reader, image_topic, info_topic)
     img_t, info_t = chosen["image"], chosen["camera_info"]
 
     def gen() -> Iterator[Frame]:
@@ -484,10 +480,14 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
     return gen(), chosen
 
 
-def bag_ground_truth(reader: BagReader, topic: str | None) -> Trajectory | None:
-    """The bag's ground-truth poses (:data:`GT_TYPES` on ``topic``, by header stamp) as a :class:`Trajectory`, looked
-    up as a ``--gt`` TUM file is: a motion-capture stream at its own rate and stamps gives each frame its nearest
-    pose within half the stream's spacing. None without the topic or its messages."""
+def bag_ground_truth(reader: BagReader, wanted: str | None = None) -> Trajectory | None:
+    """The bag's ground-truth poses (:data:`GT_TYPES` on ``wanted``, else on :func:`pick_ground_truth`'s topic, by
+    header stamp) as a :class:`Trajectory`, looked up as a ``--gt`` TUM file is: a motion-capture stream at its own
+    rate and stamps gives each frame its nearest pose within half the stream's spacing. None without the topic or
+    its messages; the pose topics not taken are noted in the reader's warnings."""
+    topic, note = pick_ground_truth(reader.topics, wanted)
+    if note:
+        reader.warnings.append(note)
     if topic is None:
         return None
     stamped = [(msg_time(m.msg), pose_from_msg(m.msg)) for m in reader.messages({topic})]

@@ -72,13 +72,12 @@ def live_env() -> dict[str, str]:
     return env
 
 
-def live_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
-                gt_topic: str | None = None) -> dict[str, str | None]:
+def live_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None) -> dict[str, str | None]:
     """The topics a live replay plays and scores (:func:`~nmnet_ros.bags.choose_topics`); BagError for a ROS 1 bag."""
     if reader.ros1:
         raise BagError(f"{reader.path}: live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags (and .mcap files "
                        "converted from them) offline (without --live)")
-    return choose_topics(reader, image_topic, info_topic, gt_topic)
+    return choose_topics(reader, image_topic, info_topic)
 
 
 def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log: Callable[[str], None] = print,

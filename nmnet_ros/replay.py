@@ -129,7 +129,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     ``truth``: the ground truth the frames are scored against (:func:`ground_truth`), by stamp; ``camera``: the
     calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.
     """
-    frames, chosen = read_frames(reader, **(topics or {}), rectified=rectified)
+    frames, _ = read_frames(reader, **(topics or {}), rectified=rectified)
     run = Run(fe.config["selector"])
     notes = Notes(log)
     n_frames, prev_gt, overlay, last_note, last_stamp = 0, None, None, None, None
@@ -378,7 +378,7 @@ def gt_frames(text: str) -> tuple[str, str]:
     return parent, child
 
 
-def ground_truth(reader: BagReader, args: argparse.Namespace, topics: dict[str, str | None]) -> Trajectory | None:
+def ground_truth(reader: BagReader, args: argparse.Namespace) -> Trajectory | None:
     """What the replay scores against: the ``--gt`` TUM file, else ``--gt-tf``'s transforms on /tf, else the bag's
     ground-truth topic (each looked up by stamp within half its spacing), else nothing; moved to the camera by
     ``--gt-camera`` when it tracks a body. A file or transform that is not there stops the replay, naming it."""
@@ -387,7 +387,7 @@ def ground_truth(reader: BagReader, args: argparse.Namespace, topics: dict[str, 
     elif args.gt_tf is not None:
         truth = tf_ground_truth(reader, args.gt_topic or "/tf", *args.gt_tf)
     else:
-        truth = bag_ground_truth(reader, topics["ground_truth"])
+        truth = bag_ground_truth(reader, args.gt_topic)
     return truth.moved(args.gt_camera) if truth is not None and args.gt_camera is not None else truth
 
 
@@ -397,8 +397,7 @@ def main(args: argparse.Namespace) -> int:
     params = node_params(args)  # a bad parameters file stops here, naming it
     camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
     plots_dir = args.plots or args.out.parent
-    topics = {"image_topic": args.image_topic, "info_topic": args.info_topic,
-              "gt_topic": None if args.gt_tf else args.gt_topic}  # with --gt-tf, --gt-topic names the TFMessage topic
+    topics = {"image_topic": args.image_topic, "info_topic": args.info_topic}
     if args.live:
         from .live import live_topics, require_ros
 
@@ -409,10 +408,10 @@ def main(args: argparse.Namespace) -> int:
                              "replay without --live for the others")
         if params["weights"]:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
-        truth = ground_truth(reader, args, chosen)  # a bad --gt file or --gt-tf stops here too
+        truth = ground_truth(reader, args)  # a bad --gt file, --gt-topic or --gt-tf stops here too
         return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params, truth, chosen)
-    chosen = choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
-    truth = ground_truth(reader, args, chosen)  # likewise a bad --gt file or --gt-tf
+    choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
+    truth = ground_truth(reader, args)  # likewise a bad --gt file, --gt-topic or --gt-tf
     cfg = frontend_config(params)
     if args.selector is not None:
         cfg["selector"] = args.selector

@@ -14,7 +14,17 @@ import numpy as np
 import pytest
 import yaml
 
-from nmnet_ros.bags import BagError, BagReader, bag_ground_truth, choose_topics, pose_from_msg, read_frames, tf_ground_truth, typestore
+from nmnet_ros.bags import (
+    BagError,
+    BagReader,
+    bag_ground_truth,
+    choose_topics,
+    pick_ground_truth,
+    pose_from_msg,
+    read_frames,
+    tf_ground_truth,
+    typestore,
+)
 from nmnet_ros.demo import SAMPLE_BAG
 from nmnet_ros.make_bag import make_bag
 
@@ -59,14 +69,15 @@ def test_round_trip_all_formats_same_frames_and_results(bags, tmp_path):
     for fmt, path in bags.items():
         it, chosen = read_frames(BagReader(path))
         frames[fmt] = list(it)
-        assert chosen["camera_info"] == "/camera/camera_info" and chosen["ground_truth"] == "/ground_truth/pose"
+        assert chosen["camera_info"] == "/camera/camera_info" and pick_ground_truth(BagReader(path).topics, None)[0] == (
+            "/ground_truth/pose")
     assert [len(v) for v in frames.values()] == [4, 4, 4]
     for a, b, c in zip(*frames.values(), strict=True):
         assert a.stamp == pytest.approx(b.stamp) == pytest.approx(c.stamp)
         np.testing.assert_array_equal(a.image, c.image)  # same JPEG bytes in .mcap and .bag
         assert np.abs(a.image.astype(int) - b.image.astype(int)).mean() < 3  # raw Image vs JPEG
         np.testing.assert_allclose(a.camera.K, b.camera.K)
-    truths = [bag_ground_truth(BagReader(path), "/ground_truth/pose") for path in bags.values()]
+    truths = [bag_ground_truth(BagReader(path)) for path in bags.values()]
     for truth in truths:
         np.testing.assert_allclose(truth.stamps, [f.stamp for f in frames["mcap"]])
         np.testing.assert_allclose(truth.poses, truths[0].poses)
@@ -729,6 +740,8 @@ def test_ground_truth_of_a_tracked_body_scores_the_camera_with_its_place_on_the_
     assert runs["body"]["scored_pairs"] == 5 and runs["body"]["median_trans_deg"] > 10 * runs["exact"]["median_trans_deg"]
     assert ("not taken as ground truth: /goal_pose [geometry_msgs/msg/PoseStamped], /odom [nav_msgs/msg/Odometry] (the name "
             "does not say so)") in runs["body"]["log"]
+    r, _ = replay_json(robot, tmp_path, "--gt", str(data_dir("kitti-07") / "groundtruth.txt"), name="tum")
+    assert r.returncode == 0 and "not taken as ground truth" not in r.stdout, r.stdout  # --gt decides: no topic is looked at
     r = nmnet("replay", str(robot), "--out", str(tmp_path / "none.mcap"), "--gt-camera", "0.3 0 0.5")
     assert r.returncode == 2 and "--gt-camera: '0.3 0 0.5': expected 'x y z qx qy qz qw'" in r.stderr, r.stderr
     r, live = replay_json(robot, tmp_path, "--live", "--rate", "0.3", "--gt-camera", place, name="live")  # as --live scores
