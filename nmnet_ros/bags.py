@@ -490,10 +490,12 @@ def bag_ground_truth(reader: BagReader, wanted: str | None = None) -> Trajectory
         reader.warnings.append(note)
     if topic is None:
         return None
-    stamped = [(msg_time(m.msg), pose_from_msg(m.msg)) for m in reader.messages({topic})]
-    if not stamped:
-        return None
-    return Trajectory(np.array([t for t, _ in stamped]), np.array([T for _, T in stamped]))
+    return _trajectory([(msg_time(m.msg), pose_from_msg(m.msg)) for m in reader.messages({topic})])
+
+
+def _trajectory(stamped: list[tuple[float, np.ndarray]]) -> Trajectory | None:
+    """(stamp, 4x4 pose) pairs as a :class:`Trajectory`; None for none."""
+    return Trajectory(np.array([t for t, _ in stamped]), np.array([T for _, T in stamped])) if stamped else None
 
 
 def tf_ground_truth(reader: BagReader, topic: str, parent: str, child: str) -> Trajectory:
@@ -507,7 +509,7 @@ def tf_ground_truth(reader: BagReader, topic: str, parent: str, child: str) -> T
             seen.add(edge)
             if edge == want:
                 stamped.append((msg_time(tf), pose_from_msg(tf)))
-    if not stamped:
+    if (truth := _trajectory(stamped)) is None:
         edges = ", ".join(f"{a}:{b}" for a, b in sorted(seen)[:20]) or "none"
         raise BagError(f"--gt-tf {parent}:{child}: no such transform on {topic}; it has {edges}")
-    return Trajectory(np.array([t for t, _ in stamped]), np.array([T for _, T in stamped]))
+    return truth
