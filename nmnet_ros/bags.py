@@ -352,9 +352,9 @@ def image_base(topic: str) -> str:
 
 
 def camera_namespace(topic: str) -> str:
-    """The namespace of an image topic's camera, where its camera_info lives (/cam/image_raw/compressed -> /cam), as
-    image_transport's camera subscriber finds it."""
-    return image_base(topic).rpartition("/")[0] or "/"
+    """The namespace of an image topic's camera, where its camera_info lives (/cam/image_raw/compressed -> /cam; ""
+    for a topic at the root), as image_transport's camera subscriber finds it."""
+    return image_base(topic).rpartition("/")[0]
 
 
 def pick_image(topics: dict[str, str], wanted: str | None) -> tuple[str | None, str | None]:
@@ -439,7 +439,7 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
         damage = f"; reading stopped at {reader.damage}: the file is damaged or cut short" if reader.damage else ""
         raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}{damage}")
     infos = [t for t, m in topics.items() if m == "sensor_msgs/msg/CameraInfo"]
-    sibling = f"{camera_namespace(img_t)}/camera_info".replace("//", "/")
+    sibling = f"{camera_namespace(img_t)}/camera_info"
     info_t = sibling if info_topic is None and len(infos) > 1 and sibling in infos else \
         pick_topic(topics, ("sensor_msgs/msg/CameraInfo",), "info", info_topic)
     return {"image": img_t, "camera_info": info_t}

@@ -834,6 +834,9 @@ def test_one_cameras_transports_and_a_stereo_pairs_camera_info_are_told_apart(ra
     for image, info in (("/right/image_raw", "/right/camera_info"), ("/left/image_raw/compressed", "/left/camera_info")):
         assert choose_topics(reader, image_topic=image)["camera_info"] == info
     assert choose_topics(reader, "/right/image_raw", "/left/camera_info")["camera_info"] == "/left/camera_info"
+    from nmnet_ros.bags import camera_namespace
+
+    assert [camera_namespace(t) for t in ("/left/image_raw/compressed", "/image_raw", "/a/b/image")] == ["/left", "", "/a/b"]
     r, s = replay_json(stereo, tmp_path, "--image-topic", "/right/image_raw", "--gt",
                        str(data_dir("kitti-07") / "groundtruth.txt"), name="right")
     assert r.returncode == 0 and s["processed"] == 6 and s["auc5"] > 80, (r.stderr, s)
