@@ -79,11 +79,12 @@ def _metadata(directory: Path) -> dict | None:
         return None
 
 
-def _bag_files(path: Path) -> tuple[str, list[Path], list[str]]:
+def _bag_files(path: Path, meta: dict | None) -> tuple[str, list[Path], list[str]]:
     """The bag's kind (mcap, db3, bag), its storage files in recording order and what is amiss with them:
     ``path`` itself, or every file of a ROS 2 bag directory (split by ``ros2 bag record --max-bag-size`` or
     ``--max-bag-duration``; ``.zstd`` when recorded with ``--compression-mode file``) in its metadata.yaml's
-    order, else by name; or the .bag files of a folder (a ROS 1 recording split by ``rosbag record --split``)."""
+    order (``meta``: :func:`_metadata`), else by name; or the .bag files of a folder (a ROS 1 recording split by
+    ``rosbag record --split``)."""
     if not path.is_dir():
         if path.suffix in (".mcap", ".db3", ".bag"):
             return path.suffix[1:], [path], []
@@ -93,7 +94,6 @@ def _bag_files(path: Path) -> tuple[str, list[Path], list[str]]:
         zipped = sorted(path.glob(f"*.{kind}.zstd"), key=_natural)
         if not found and not zipped:
             continue
-        meta = _metadata(path)
         if meta is None and not found:
             raise BagError(f"{path}: its .{kind}.zstd files are compressed and metadata.yaml, which says how, is missing "
                            f"or unreadable; decompress them (`zstd -d {zipped[0]}`) or restore metadata.yaml")
@@ -178,19 +178,19 @@ class BagReader:
         self.path = Path(path)
         if not self.path.exists():
             raise BagError(f"{self.path}: no such bag")
-        self.kind, self.files, self.warnings = _bag_files(self.path)
+        meta = _metadata(self.path) if self.path.is_dir() else None  # read once: files, compression, damage
+        self.kind, self.files, self.warnings = _bag_files(self.path, meta)
         self.ros1 = self.kind == "bag"  # ROS 1 messages: a .bag, or an .mcap converted from one (`mcap convert`)
         for f in self.files:
             _check_signature(f, self.kind)
         # .mcap files are streamed record by record (a truncated one yields its readable part); rosbags decompresses
-        meta = _metadata(self.path) if self.path.is_dir() else None
         compressed = str((meta or {}).get("compression_mode") or "none").lower() != "none"  # file or message mode
         self._streamed = self.kind == "mcap" and not compressed
         self._sources = self.files if self.kind == "bag" else [self.path]  # what rosbags opens: ROS 1 bags one by one
         self.damage: str | None = None  # what stopped the topic listing short (an .mcap cut before its channels)
         self._told: set[str] = set()
         self._salvaged: list[_Db3Salvage] = []
-        self.topics = self._topics()
+        self.topics = self._topics(meta)
 
     def new_warnings(self) -> list[str]:
         """The warnings not handed out before: a second pass over a damaged bag finds the same damage again."""
@@ -198,7 +198,7 @@ class BagReader:
         self._told.update(new)
         return new
 
-    def _topics(self) -> dict[str, str]:
+    def _topics(self, meta: dict | None) -> dict[str, str]:
         if self._streamed:
             topics: dict[str, str] = {}
             for file in self.files:
@@ -215,7 +215,7 @@ class BagReader:
         except Exception as e:  # noqa: BLE001 - rosbags raises several types
             if self.kind == "db3" and self.files[0].suffix == ".db3":
                 self._salvaged = [_Db3Salvage(f, e) for f in self.files]
-                if self.path.is_file() or _metadata(self.path) is not None:
+                if self.path.is_file() or meta is not None:  # without metadata.yaml the files are read directly, said
                     self.warnings.append(f"{self.path}: damaged or truncated ({e}); reading what is readable")
                 return {t: m for s in self._salvaged for t, m in s.topics.items()}
             hint = ("a ROS 1 bag cut short has lost its index: rebuild it with `rosbag reindex` (ROS 1 tools), then replay "
