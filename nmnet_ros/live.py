@@ -204,19 +204,16 @@ def score_recording(path: Path, truth: Trajectory | None) -> dict:
     Each message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the
     first, relative to the node's first frame, which has no message, is not scored.
     """
+    if truth is None:  # nothing to score against: the recording is not read
+        return error_summary([])
     rec = BagReader(path)
     poses = [(m.log_time_ns, m.msg) for m in rec.messages({f"/{NODE_NAME}/relative_pose"})]
-
     if note := truth_missed(truth, [t / 1e9 for t, _ in poses]):
         print(f"warning: {note}", file=sys.stderr)
-
-    def truth_at(t_ns: int) -> np.ndarray | None:
-        return None if truth is None else truth.at(t_ns / 1e9)
-
     errs = []
     for (t_prev, _), (t_cur, msg) in zip(poses, poses[1:], strict=False):
         o, p = msg.pose.pose.orientation, msg.pose.pose.position
         status, pose = estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance)
-        if (err := frame_error(status, pose, truth_at(t_prev), truth_at(t_cur))) is not None:
+        if (err := frame_error(status, pose, truth.at(t_prev / 1e9), truth.at(t_cur / 1e9))) is not None:
             errs.append(err)
     return error_summary(errs)

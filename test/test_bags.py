@@ -609,6 +609,8 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     live_scoring = [score_recording(tmp_path / "bag.mcap", gt) for gt in (own, read_tum(tum), tf)]
     assert live_scoring[0]["scored_pairs"] == 4 and live_scoring[1] == pytest.approx(live_scoring[0])  # as --live scores
     assert live_scoring[2] == pytest.approx(live_scoring[0])
+    unscored = score_recording(tmp_path / "bag.mcap", None)  # no ground truth: nothing scored
+    assert unscored["scored_pairs"] == 0 and unscored["median_rot_deg"] is None and np.isnan(unscored["auc5"])
     shifted = tmp_path / "shifted.txt"  # every pose a frame later: the errors change
     rows = [ln.split() for ln in tum.read_text().splitlines() if not ln.startswith("#")]
     shifted.write_text("".join(" ".join([a[0], *b[1:]]) + "\n" for a, b in zip(rows, rows[1:], strict=False)))
