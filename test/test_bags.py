@@ -215,6 +215,15 @@ def test_every_file_of_a_split_or_compressed_ros2_bag_is_read_in_recording_order
     for mode, storage in (("FILE", "MCAP"), ("MESSAGE", "MCAP"), ("FILE", "SQLITE3")):
         got, _ = read(recompressed(whole, tmp_path / f"{mode}_{storage}", mode, storage))
         np.testing.assert_allclose(got, stamps, atol=1e-6, err_msg=(mode, storage))
+    db3 = split_bag(tmp_path / "bare_db3", "sqlite3", ["run_2", "run_10", "run_11"], metadata=False)
+    got, warnings = read(db3)  # rosbags needs metadata.yaml: each .db3 is read directly, in rosbag2's numbering
+    np.testing.assert_allclose(got, stamps, atol=1e-6)
+    assert warnings == [f"{db3}: no readable metadata.yaml; its 3 .db3 file(s) are read directly, in name order "
+                        f"(`ros2 bag reindex {db3}` rewrites metadata.yaml)"], warnings
+    fake = next((tmp_path / "FILE_SQLITE3").glob("*.zstd"))
+    fake.write_bytes(b"not zstd at all")
+    with pytest.raises(BagError, match=r"\.db3\.zstd: not a zstd-compressed file \(it does not begin as one"):
+        BagReader(tmp_path / "FILE_SQLITE3")
     zipped = tmp_path / "FILE_MCAP"
     (zipped / "metadata.yaml").unlink()
     with pytest.raises(BagError, match=r"\.mcap\.zstd files are compressed and metadata.yaml, which says how, is missing"):

@@ -152,3 +152,15 @@ def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
     (dst / "images.txt").write_text("\n".join(rows[:1] + ["0.5"] + rows[2:]) + "\n")
     with pytest.raises(DatasetError, match=r"images.txt:2: expected 'timestamp path', got '0.5'"):
         Sequence.load(dst)
+
+
+def test_a_pose_given_as_text_is_seven_numbers_with_a_rotation():
+    """--gt-camera's 'x y z qx qy qz qw' (TUM's order): anything else is refused, saying what is expected."""
+    from nmnet_ros.datasets import parse_pose
+
+    T = parse_pose("0.3, 0 0.5 -0.5 0.5 -0.5 0.5")
+    np.testing.assert_allclose(T[:3, 3], [0.3, 0, 0.5])
+    np.testing.assert_allclose(T[:3, :3], [[0, 0, 1], [-1, 0, 0], [0, -1, 0]], atol=1e-12)
+    for bad in ("0.3 0 0.5", "0 0 0 0 0 0 0", "0 0 0 nan 0 0 1", "a b c d e f g", "1 2 3 4 5 6 7 8"):
+        with pytest.raises(ValueError, match="expected 'x y z qx qy qz qw', seven numbers with a non-zero quaternion"):
+            parse_pose(bad)
