@@ -23,6 +23,7 @@ from .caminfo import camera_from_info
 from .datasets import Trajectory, quat_to_rot
 from .geometry import Camera, CameraError
 from .imgconv import IMAGE_TYPES, ImageError, decode_compressed, image_to_array
+from .tftree import TfError, TfTree
 
 
 class BagError(ValueError):
@@ -368,6 +369,7 @@ def pick_image(topics: dict[str, str], wanted: str | None) -> tuple[str | None, 
     return pick_topic(topics, IMAGE_TYPES, "image", wanted), None
 
 
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")  # ROS 2 and Noetic; ROS 1 before tf2 (TUM RGB-D's bags)
 GT_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped", "nav_msgs/msg/Odometry",
             "geometry_msgs/msg/TransformStamped")  # what a ground-truth topic may carry
 GT_NAMES = ("ground_truth", "groundtruth", "vicon", "mocap", "optitrack", "qualisys", "vrpn", "leica")  # and be called
@@ -499,17 +501,20 @@ def _trajectory(stamped: list[tuple[float, np.ndarray]]) -> Trajectory | None:
 
 
 def tf_ground_truth(reader: BagReader, topic: str, parent: str, child: str) -> Trajectory:
-    """Ground truth from the ``parent`` -> ``child`` transforms on a TFMessage ``topic`` (a motion-capture system or
-    a simulator that publishes only /tf); BagError naming the transforms the topic has when none is that one."""
-    topic = pick_topic(reader.topics, ("tf2_msgs/msg/TFMessage",), "gt", topic)
-    want, seen, stamped = (parent.strip("/"), child.strip("/")), set(), []
-    for m in reader.messages({topic}):
+    """Ground truth from the transforms that lead from ``parent`` to ``child`` on a TF ``topic`` (/tf) and on /tf_static:
+    one edge a motion-capture system or simulator publishes, or a chain through the tree (:class:`~.tftree.TfTree`:
+    motion capture's world -> base_link, then the robot's base_link -> camera_optical_frame). The chain is noted in
+    the reader's warnings; BagError naming the transforms there are when none lead from one frame to the other."""
+    topic = pick_topic(reader.topics, TF_TYPES, "gt", topic)
+    static = {t for t, m in reader.topics.items() if t == "/tf_static" and m in TF_TYPES} - {topic}
+    tree = TfTree()
+    for m in reader.messages({topic, *static}):
         for tf in m.msg.transforms:
-            edge = (tf.header.frame_id.strip("/"), tf.child_frame_id.strip("/"))
-            seen.add(edge)
-            if edge == want:
-                stamped.append((msg_time(tf), pose_from_msg(tf)))
-    if (truth := _trajectory(stamped)) is None:
-        edges = ", ".join(f"{a}:{b}" for a, b in sorted(seen)[:20]) or "none"
-        raise BagError(f"--gt-tf {parent}:{child}: no such transform on {topic}; it has {edges}")
+            tree.add(tf.header.frame_id, tf.child_frame_id, msg_time(tf), pose_from_msg(tf), m.topic in static)
+    try:
+        truth = tree.trajectory(parent, child)
+    except TfError as e:
+        raise BagError(f"--gt-tf {parent}:{child}: {e} (on {' and '.join([topic, *static])})") from e
+    if len(tree.chain(parent, child)) > 1:  # say which way it went, for the user to check
+        reader.warnings.append(f"--gt-tf {parent}:{child}: chained {tree.route(parent, child)}")
     return truth

@@ -315,7 +315,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gt-topic", default=None, help="the ground-truth topic (a pose, odometry or transform message; "
                    "with --gt-tf, the TFMessage topic, default /tf)")
     p.add_argument("--gt-tf", type=gt_frames, default=None, metavar="PARENT:CHILD",
-                   help="ground truth from /tf: the transforms from PARENT to CHILD (a motion-capture or simulator frame)")
+                   help="ground truth from /tf and /tf_static: CHILD's pose in PARENT, chained through the tree as tf2 does "
+                   "(world:camera_optical_frame over motion capture's world -> base_link and the robot's static mount)")
     p.add_argument("--rectified", action="store_true", help="the bag's images are rectified (image_rect): use camera_info's "
                    "P, without distortion")
     p.add_argument("--camera", type=Path, default=None, help="calibration as a ROS camera_info YAML (what camera_calibration "

@@ -609,7 +609,8 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     keys = ("median_rot_deg", "median_trans_deg", "auc5", "auc10", "auc20")
     assert runs["bag"]["auc5"] > 80 and [runs["tum"][k] for k in keys] == pytest.approx([runs["bag"][k] for k in keys]), runs
     assert [runs["tf"][k] for k in keys] == pytest.approx([runs["bag"][k] for k in keys]), runs  # make-bag's /tf: the same
-    for value, says in (("world:robot", "--gt-tf world:robot: no such transform on /tf; it has world:camera_gt"),
+    for value, says in (("world:robot", "--gt-tf world:robot: no transforms lead from world to robot; there are "
+                                        "world:camera_gt (on /tf)"),
                         ("world", "--gt-tf: 'world': expected PARENT:CHILD, two frame names")):
         r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--gt-tf", value, "--no-progress")
         assert r.returncode == 2 and says in r.stderr and not (tmp_path / "none.mcap").exists(), r.stderr
@@ -679,6 +680,107 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
     assert r.returncode == 0 and says in r.stdout and other["scored_pairs"] == 0, (r.stdout, other)
     assert score_recording(tmp_path / "exact.mcap", read_tum(tmp_path / "other_clock.txt"))["scored_pairs"] == 0
     assert says in capsys.readouterr().err
+
+
+def robot_tf_bag(src: Path, dst: Path, cam_in_body: np.ndarray) -> None:
+    """``src`` with its world -> camera_gt transforms replaced by a robot's tree: motion capture's world -> base_link on
+    /tf, base_link -> camera_link on /tf_static, camera_link -> camera_optical republished on /tf at every frame and
+    stamped 0.1 s ahead (ROS 1's static_transform_publisher); ``cam_in_body`` is camera_optical in base_link."""
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+
+    from nmnet_ros.posemsg import rot_to_quat
+
+    ts = typestore()
+    T = ts.types
+    mount = np.eye(4)
+    mount[:3, 3] = [0.1, 0.0, 0.0]
+    optical = np.linalg.inv(mount) @ cam_in_body
+
+    def transform(stamp, parent: str, child: str, pose: np.ndarray):
+        q = rot_to_quat(pose[:3, :3])
+        return T["geometry_msgs/msg/TransformStamped"](
+            header=T["std_msgs/msg/Header"](stamp=stamp, frame_id=parent), child_frame_id=child,
+            transform=T["geometry_msgs/msg/Transform"](translation=T["geometry_msgs/msg/Vector3"](*pose[:3, 3]),
+                                                       rotation=T["geometry_msgs/msg/Quaternion"](*q)))
+
+    tf_type = "tf2_msgs/msg/TFMessage"
+    with Reader(src) as r, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
+        static = w.add_connection("/tf_static", tf_type, typestore=ts)
+        for c, t, raw in r.messages():
+            if c.topic != "/tf":
+                w.write(conns[c.id], t, raw)
+                continue
+            cam = ts.deserialize_cdr(raw, c.msgtype).transforms[0]
+            body = transform(cam.header.stamp, "world", "base_link", pose_from_msg(cam) @ np.linalg.inv(cam_in_body))
+            ahead = T["builtin_interfaces/msg/Time"](sec=cam.header.stamp.sec, nanosec=cam.header.stamp.nanosec)
+            ahead.nanosec += 100_000_000
+            ahead.sec, ahead.nanosec = ahead.sec + ahead.nanosec // 10**9, ahead.nanosec % 10**9
+            fixed = transform(ahead, "camera_link", "camera_optical", optical)
+            w.write(conns[c.id], t, ts.serialize_cdr(T[tf_type](transforms=[body, fixed]), tf_type))
+        zero = T["builtin_interfaces/msg/Time"](sec=0, nanosec=0)
+        w.write(static, 0, ts.serialize_cdr(T[tf_type](transforms=[transform(zero, "base_link", "camera_link", mount)]),
+                                            tf_type))
+
+
+def test_ground_truth_through_a_robots_tf_tree_scores_as_the_cameras_own_poses(raw_bag, tmp_path):
+    """--gt-tf world:camera_optical on a robot's tree (moving world -> base_link, /tf_static base_link -> camera_link,
+    a republished camera_link -> camera_optical stamped ahead) chains the three transforms, says so, and gives the
+    scores of the camera's own poses; before, only one published edge was taken ("no such transform"). Frames no chain
+    joins are named with the transforms there are."""
+    cam_in_body = np.eye(4)
+    cam_in_body[:3, :3], cam_in_body[:3, 3] = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]), [0.3, 0.0, 0.5]
+    robot = tmp_path / "robot_tf"
+    robot_tf_bag(raw_bag, robot, cam_in_body)
+    own = tf_ground_truth(BagReader(raw_bag), "/tf", "world", "camera_gt")
+    reader = BagReader(robot)
+    chained = tf_ground_truth(reader, "/tf", "world", "camera_optical")
+    assert np.allclose(chained.stamps, own.stamps) and np.allclose(chained.poses, own.poses)
+    assert reader.warnings == ["--gt-tf world:camera_optical: chained world -> base_link -> camera_link -> camera_optical "
+                               "(moving: world:base_link)"]
+    up = tf_ground_truth(BagReader(robot), "/tf", "camera_optical", "world")  # asked the other way round: the inverse
+    assert np.allclose(up.poses @ own.poses, np.eye(4))
+    runs = {}
+    for name, bag, frames in (("own", raw_bag, "world:camera_gt"), ("robot", robot, "world:camera_optical")):
+        r, runs[name] = replay_json(bag, tmp_path, "--gt-tf", frames, name=name)
+        assert r.returncode == 0, r.stderr
+        runs[name]["log"] = r.stdout
+    keys = ("scored_pairs", "median_rot_deg", "median_trans_deg", "auc5", "auc10", "auc20")
+    assert runs["own"]["scored_pairs"] == 5 and [runs["robot"][k] for k in keys] == pytest.approx(
+        [runs["own"][k] for k in keys]), runs
+    assert "warning: --gt-tf world:camera_optical: chained world -> base_link" in runs["robot"]["log"]
+    with pytest.raises(BagError, match="--gt-tf base_link:camera_link: every transform from base_link to camera_link is "
+                                       "on /tf_static: no motion to score against"):
+        tf_ground_truth(BagReader(robot), "/tf", "base_link", "camera_link")
+    r = nmnet("replay", str(robot), "--out", str(tmp_path / "none.mcap"), "--gt-tf", "world:camera", "--no-progress")
+    says = ("--gt-tf world:camera: no transforms lead from world to camera; there are base_link:camera_link, "
+            "camera_link:camera_optical, world:base_link (on /tf and /tf_static)")
+    assert r.returncode == 2 and says in r.stderr and not (tmp_path / "none.mcap").exists(), r.stderr
+
+
+def test_ground_truth_from_ros1_tf_messages_of_before_tf2(tmp_path):
+    """ROS 1 bags recorded before tf2 (TUM RGB-D's, with /world -> /kinect from motion capture) carry /tf as
+    tf/tfMessage with slashed frame names; --gt-tf reads them as tf2_msgs/TFMessage. Before, the topic was refused
+    ("carries tf/msg/tfMessage, not tf2_msgs/msg/TFMessage")."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys.msg import get_types_from_msg
+
+    ts = typestore(ros1=True)
+    ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf/msg/tfMessage"))
+    T, bag = ts.types, tmp_path / "tum_like.bag"
+    with Writer(bag) as w:
+        conn = w.add_connection("/tf", "tf/msg/tfMessage", typestore=ts)
+        for i in range(5):
+            header = T["std_msgs/msg/Header"](seq=i, stamp=T["builtin_interfaces/msg/Time"](sec=10 + i, nanosec=0),
+                                              frame_id="/world")
+            move = T["geometry_msgs/msg/Transform"](translation=T["geometry_msgs/msg/Vector3"](float(i), 0.0, 0.0),
+                                                    rotation=T["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0))
+            msg = T["tf/msg/tfMessage"](transforms=[T["geometry_msgs/msg/TransformStamped"](header=header,
+                                                                                            child_frame_id="/kinect",
+                                                                                            transform=move)])
+            w.write(conn, (10 + i) * 10**9, ts.serialize_ros1(msg, "tf/msg/tfMessage"))
+    truth = tf_ground_truth(BagReader(bag), "/tf", "world", "kinect")
+    assert truth.stamps.tolist() == [10, 11, 12, 13, 14] and truth.poses[:, 0, 3].tolist() == [0, 1, 2, 3, 4]
 
 
 def test_a_pose_topic_is_ground_truth_by_itself_only_when_its_name_says_so():
