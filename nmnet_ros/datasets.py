@@ -24,20 +24,61 @@ class DatasetError(ValueError):
     """A sequence folder is missing a file or has a malformed one."""
 
 
-def read_camera_yaml(path: Path) -> Camera:
-    """ROS camera_info YAML (camera_calibration_parsers layout) -> Camera."""
+KALIBR_DISTORTION = {"radtan": "plumb_bob", "radial-tangential": "plumb_bob", "plumb_bob": "plumb_bob", "none": "plumb_bob",
+                     "equidistant": "equidistant", "equi": "equidistant", "fisheye": "equidistant"}  # -> camera_info's
+
+
+def read_camera_yaml(path: Path, topic: str | None = None) -> Camera:
+    """A calibration file -> Camera: ROS camera_info YAML (camera_calibration_parsers' layout, a sequence folder's
+    camera.yaml), Kalibr's camchain (its one camera, or the one whose ``rostopic`` is ``topic``) or EuRoC's
+    sensor.yaml (Kalibr's fields for one camera), so bags recorded without camera_info replay with the calibration
+    they came with."""
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: missing; a sequence folder needs camera.yaml (ROS camera_info YAML)")
     try:
         d = yaml.safe_load(path.read_text())
-        K = np.array(d["camera_matrix"]["data"], np.float64).reshape(3, 3)
-        dist = np.array(d.get("distortion_coefficients", {}).get("data", []) or [], np.float64)
-        return Camera(K, dist, int(d.get("image_width", 0)), int(d.get("image_height", 0)), d.get("distortion_model") or "")
-    except (KeyError, TypeError, yaml.YAMLError) as e:
-        raise DatasetError(f"{path}: malformed camera YAML ({e})") from e
+        if isinstance(d, dict) and "camera_matrix" in d:
+            K = np.array(d["camera_matrix"]["data"], np.float64).reshape(3, 3)
+            dist = np.array(d.get("distortion_coefficients", {}).get("data", []) or [], np.float64)
+            return Camera(K, dist, int(d.get("image_width", 0)), int(d.get("image_height", 0)),
+                          d.get("distortion_model") or "")
+        if isinstance(d, dict) and "intrinsics" in d:
+            return _kalibr_camera(d)
+        cams = {k: v for k, v in d.items() if isinstance(v, dict) and "intrinsics" in v} if isinstance(d, dict) else {}
+        if not cams:
+            raise DatasetError(f"{path}: not a camera calibration; expected a ROS camera_info YAML (camera_matrix, "
+                               "distortion_coefficients, ...), a Kalibr camchain (cam0: intrinsics, ...) or a EuRoC "
+                               "sensor.yaml")
+        on_topic = [k for k, v in cams.items() if topic is not None and v.get("rostopic") == topic]
+        if len(cams) > 1 and len(on_topic) != 1:
+            listed = ", ".join(f"{k} ({v.get('rostopic', 'no rostopic')})" for k, v in cams.items())
+            raise DatasetError(f"{path}: {len(cams)} cameras ({listed}) and none's rostopic is the image topic "
+                               f"{topic}; replay the camera's topic (--image-topic) or keep its entry only")
+        return _kalibr_camera(cams[on_topic[0] if on_topic else next(iter(cams))])
+    except DatasetError:
+        raise
     except CameraError as e:
         raise DatasetError(f"{path}: {e}") from e
+    except (KeyError, TypeError, ValueError, yaml.YAMLError) as e:  # a missing field, a wrong count, words for numbers
+        raise DatasetError(f"{path}: malformed camera YAML ({type(e).__name__}: {e})") from e
+
+
+def _kalibr_camera(d: dict) -> Camera:
+    """One camera of Kalibr's camchain / EuRoC's sensor.yaml: pinhole ``intrinsics`` [fu, fv, pu, pv],
+    ``resolution`` [w, h], radtan or equidistant ``distortion_coeffs`` (EuRoC: ``distortion_coefficients``)."""
+    if (model := d.get("camera_model", "pinhole")) != "pinhole":
+        raise CameraError(f"camera_model {model!r} is not supported: only pinhole (with radtan or equidistant "
+                          "distortion); calibrate with Kalibr's pinhole-radtan or pinhole-equi, or rectify the images")
+    fu, fv, pu, pv = (float(v) for v in d["intrinsics"])
+    name = str(d.get("distortion_model", "none"))
+    if name not in KALIBR_DISTORTION:
+        raise CameraError(f"distortion model {name!r} is not supported; use one of {', '.join(KALIBR_DISTORTION)}, or "
+                          "rectify the images")
+    dist = [] if name == "none" else d.get("distortion_coeffs", d.get("distortion_coefficients", []))
+    w, h = (int(v) for v in d.get("resolution", (0, 0)))
+    return Camera(np.array([[fu, 0, pu], [0, fv, pv], [0, 0, 1]]), np.array(dist, np.float64), w, h,
+                  KALIBR_DISTORTION[name])
 
 
 def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row]) -> list[Row]:

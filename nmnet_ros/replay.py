@@ -320,7 +320,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rectified", action="store_true", help="the bag's images are rectified (image_rect): use camera_info's "
                    "P, without distortion")
     p.add_argument("--camera", type=Path, default=None, help="calibration as a ROS camera_info YAML (what camera_calibration "
-                   "writes), for a bag without camera_info or to use instead of it")
+                   "writes), a Kalibr camchain (the camera whose rostopic is the image topic) or a EuRoC sensor.yaml, for "
+                   "a bag without camera_info or to use instead of it")
     p.add_argument("--params-file", type=Path, default=None, metavar="YAML",
                    help="the node's parameters file (config/nmnet.yaml's form): replay with the settings the node runs; "
                         "the options below, when given, override it")
@@ -396,7 +397,6 @@ def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay`` (offline)."""
     reader = BagReader(args.bag)  # a missing or unreadable bag stops here
     params = node_params(args)  # a bad parameters file stops here, naming it
-    camera = read_camera_yaml(args.camera) if args.camera else None  # a bad file stops here, naming it
     plots_dir = args.plots or args.out.parent
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic}
     if args.live:
@@ -404,6 +404,7 @@ def main(args: argparse.Namespace) -> int:
 
         require_ros()  # no ROS here: stop, naming the package, before the output file is made
         chosen = live_topics(reader, **topics)  # likewise a ROS 1 bag, a topic it lacks
+        camera = read_camera_yaml(args.camera, chosen["image"]) if args.camera else None  # a bad file: named
         if args.selector is not None and args.selector not in NODE_ESTIMATORS:
             raise ValueError(f"--selector {args.selector}: the node runs {', '.join(NODE_ESTIMATORS)} (its pose_estimator); "
                              "replay without --live for the others")
@@ -411,7 +412,8 @@ def main(args: argparse.Namespace) -> int:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
         truth = ground_truth(reader, args)  # a bad --gt file, --gt-topic or --gt-tf stops here too
         return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params, truth, chosen)
-    choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
+    chosen = choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
+    camera = read_camera_yaml(args.camera, chosen["image"]) if args.camera else None  # a bad file stops here, naming it
     truth = ground_truth(reader, args)  # likewise a bad --gt file, --gt-topic or --gt-tf
     cfg = frontend_config(params)
     if args.selector is not None:

@@ -992,6 +992,18 @@ def test_a_bag_without_camera_info_replays_with_a_calibration_file(raw_bag, tmp_
         assert r.returncode == 0, r.stderr
         s = json.loads((tmp_path / f"{name}.json").read_text())
         assert s["processed"] == 6 and s["auc5"] > 80, (name, s)
+    chain = tmp_path / "camchain.yaml"  # Kalibr's form of the same calibration; the camera on the bag's image topic
+    chain.write_text("cam0: {camera_model: pinhole, intrinsics: [500.0, 500.0, 300.0, 200.0], distortion_model: radtan,\n"
+                     "       distortion_coeffs: [0.1, 0.0, 0.0, 0.0], resolution: [1226, 370], rostopic: /other/image_raw}\n"
+                     "cam1: {camera_model: pinhole, intrinsics: [707.0912, 707.0912, 601.8873, 183.1104],\n"
+                     "       distortion_model: radtan, distortion_coeffs: [0.0, 0.0, 0.0, 0.0], resolution: [1226, 370],\n"
+                     "       rostopic: /camera/image_raw}\n")
+    r = nmnet("replay", str(bag), "--camera", str(chain), "--out", str(tmp_path / "chain.mcap"),
+              "--json", str(tmp_path / "chain.json"), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    keys = ("processed", "scored_pairs", "median_rot_deg", "median_trans_deg", "auc5")
+    offline, chained = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("offline", "chain"))
+    assert [chained[k] for k in keys] == pytest.approx([offline[k] for k in keys]), (chained, offline)
     bad = tmp_path / "camera.yaml"
     bad.write_text("camera_matrix: {data: [0, 0, 0, 0, 0, 0, 0, 0, 1]}\n")
     r = nmnet("replay", str(bag), "--camera", str(bad), "--out", str(tmp_path / "b.mcap"))

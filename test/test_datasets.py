@@ -122,6 +122,80 @@ def test_missing_images_txt_and_bad_yaml(tmp_path):
         Sequence.load(tmp_path / "nope")
 
 
+EUROC_SENSOR_YAML = """\
+# General sensor definitions.
+sensor_type: camera
+comment: VI-Sensor cam0 (MT9M034)
+
+# Sensor extrinsics wrt. the body-frame.
+T_BS:
+  cols: 4
+  rows: 4
+  data: [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975,
+         0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768,
+        -0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949,
+         0.0, 0.0, 0.0, 1.0]
+
+# Camera specific definitions.
+rate_hz: 20
+resolution: [752, 480]
+camera_model: pinhole
+intrinsics: [458.654, 457.296, 367.215, 248.375] #fu, fv, cu, cv
+distortion_model: radial-tangential
+distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+"""
+
+CAMCHAIN = """\
+cam0:
+  camera_model: pinhole
+  distortion_coeffs: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+  distortion_model: radtan
+  intrinsics: [458.654, 457.296, 367.215, 248.375]
+  resolution: [752, 480]
+  rostopic: /cam0/image_raw
+cam1:
+  T_cn_cnm1: [[1, 0, 0, -0.11], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+  camera_model: pinhole
+  distortion_coeffs: [0.01, -0.002, 0.0003, -0.0001]
+  distortion_model: equidistant
+  intrinsics: [380.8, 380.5, 510.2, 390.1]
+  resolution: [1024, 768]
+  rostopic: /cam1/image_raw
+"""
+
+
+def test_kalibr_camchain_and_euroc_sensor_yaml_read_as_the_camera_info_yaml(tmp_path):
+    """EuRoC's sensor.yaml and a Kalibr camchain give the camera the ROS camera_info YAML of the same calibration
+    gives (the shipped EuRoC folder's camera.yaml); of a camchain's cameras, the one on the image topic. Other camera
+    models, distortions and malformed entries are named. Before, each was "malformed camera YAML ('camera_matrix')"."""
+    from nmnet_ros.datasets import read_camera_yaml
+
+    ros = read_camera_yaml(data_dir("euroc-v101-cam0") / "camera.yaml")
+    (tmp_path / "sensor.yaml").write_text(EUROC_SENSOR_YAML)
+    (tmp_path / "camchain.yaml").write_text(CAMCHAIN)
+    pts = np.random.default_rng(0).uniform([0, 0], [752, 480], (50, 2))
+    for cam in (read_camera_yaml(tmp_path / "sensor.yaml"), read_camera_yaml(tmp_path / "camchain.yaml", "/cam0/image_raw")):
+        assert (cam.width, cam.height, cam.model) == (752, 480, "plumb_bob") and np.allclose(cam.K, ros.K)
+        assert np.allclose(cam.normalize(pts), ros.normalize(pts), atol=1e-12)
+    fisheye = read_camera_yaml(tmp_path / "camchain.yaml", "/cam1/image_raw")
+    assert fisheye.model == "equidistant" and fisheye.width == 1024 and fisheye.K[0, 2] == 510.2
+    assert fisheye.dist.tolist() == [0.01, -0.002, 0.0003, -0.0001]
+    with pytest.raises(DatasetError, match=r"camchain.yaml: 2 cameras \(cam0 \(/cam0/image_raw\), cam1 \(/cam1/image_raw\)\) "
+                                           r"and none's rostopic is the image topic /camera/image_raw"):
+        read_camera_yaml(tmp_path / "camchain.yaml", "/camera/image_raw")
+    one = tmp_path / "one.yaml"
+    one.write_text(CAMCHAIN.split("cam1:")[0])  # a single camera is taken whatever the topic
+    assert np.allclose(read_camera_yaml(one, "/camera/image_raw").K, ros.K)
+    for edit, says in ((("pinhole", "omni"), "camera_model 'omni' is not supported: only pinhole"),
+                       (("radial-tangential", "fov"), "distortion model 'fov' is not supported"),
+                       (("367.215, 248.375]", "367.215]"), r"malformed camera YAML \(ValueError"),
+                       (("intrinsics:", "intrinsic:"), "not a camera calibration; expected a ROS camera_info YAML")):
+        bad = tmp_path / "bad.yaml"
+        bad.write_text(EUROC_SENSOR_YAML.replace(*edit))
+        with pytest.raises(DatasetError, match=f"bad.yaml: .*{says}"):
+            read_camera_yaml(bad)
+
+
 def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
     """images.txt, pairs.txt and groundtruth.txt (also `nmnet replay --gt`) name the file, the line and its columns."""
     from nmnet_ros.datasets import read_tum
