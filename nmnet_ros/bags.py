@@ -448,11 +448,12 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
 
 
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
-                rectified: bool = False) -> tuple[Iterator[Frame], dict[str, str | None]]:
+                rectified: bool = False, recorded: bool = False) -> tuple[Iterator[Frame], dict[str, str | None]]:
     """Frames of a bag with auto-detected topics (ground truth: :func:`bag_ground_truth`); errors name the topics the
     bag has.
 
-    ``rectified``: the images are rectified, so their camera is camera_info's P (see caminfo).
+    ``rectified``: the images are rectified, so their camera is camera_info's P (see caminfo). ``recorded``: each
+    frame's stamp is the time the bag recorded it, not its header's (a driver that leaves the stamp at 0).
     """
     chosen = choose_topics(reader, image_topic, info_topic)
     img_t, info_t = chosen["image"], chosen["camera_info"]
@@ -471,7 +472,7 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
                     img, err = decode_image_msg(m.msg, m.msgtype), None
                 except ImageError as e:
                     img, err = None, str(e)
-                pending.append((msg_time(m.msg), img, err))
+                pending.append((m.log_time_ns / 1e9 if recorded else msg_time(m.msg), img, err))
                 # camera_info shares the image stamp and may come just after it
                 while len(pending) > 1:
                     s, im, er = pending.pop(0)

@@ -81,11 +81,12 @@ def live_topics(reader: BagReader, image_topic: str | None = None, info_topic: s
 
 
 def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log: Callable[[str], None] = print,
-              camera: Camera | None = None, topics: dict[str, str | None] | None = None) -> dict:
+              camera: Camera | None = None, topics: dict[str, str | None] | None = None, recorded: bool = False) -> dict:
     """Play, record, stop the node; returns counts and latencies.
 
     ``camera``: published as camera_info with every image instead of the bag's camera_info; ``topics``: the
-    :func:`live_topics` to play (default: the bag's only image and camera_info topics).
+    :func:`live_topics` to play (default: the bag's only image and camera_info topics); ``recorded``: each message
+    is restamped with the time the bag recorded it (``--stamps recorded``).
     """
     import rclpy
     from rclpy.qos import QoSProfile, qos_profile_sensor_data
@@ -161,6 +162,8 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
             while (wait := due - time.monotonic()) > 0:
                 rclpy.spin_once(player, timeout_sec=min(wait, 0.02))
             msg = deserialize_message(bytes(ts.serialize_cdr(m.msg, m.msgtype)), _rclpy_type(m.msgtype))
+            if recorded:
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(m.log_time_ns, 10**9)
             if m.topic == img_t:
                 if camera:
                     pub_info.publish(camera_info_msg(camera, msg.header))

@@ -121,15 +121,17 @@ class Run:
 def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: Trajectory | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
                 log: Callable[[str], None] = print, camera: Camera | None = None,
-                rectified: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
+                rectified: bool = False, recorded: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
     """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the last good image.
 
     ``reader``: the bag, opened once (opening lists its topics) and read again for each pass.
 
     ``truth``: the ground truth the frames are scored against (:func:`ground_truth`), by stamp; ``camera``: the
-    calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified.
+    calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified; ``recorded``: the
+    frames are stamped with the time the bag recorded them (``--stamps recorded``).
     """
-    frames, _ = read_frames(reader, **(topics or {}), rectified=rectified)
+    frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded)
+    hint = "as the node does" if recorded else "as the node does; --stamps recorded stamps each frame with its recording time"
     run = Run(fe.config["selector"])
     notes = Notes(log)
     n_frames, prev_gt, overlay, last_note, last_stamp = 0, None, None, None, None
@@ -158,7 +160,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
                 continue
             order = stamp_order(last_stamp, f.stamp, fe.config["time_jump_s"])
             if order is not None:
-                notes(order, stamp_warning(order, last_stamp, f.stamp) + " (as the node does)")
+                notes(order, f"{stamp_warning(order, last_stamp, f.stamp)} ({hint})")
                 if order != "time_jump":
                     continue
             last_stamp = f.stamp
@@ -317,6 +319,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gt-tf", type=gt_frames, default=None, metavar="PARENT:CHILD",
                    help="ground truth from /tf and /tf_static: CHILD's pose in PARENT, chained through the tree as tf2 does "
                    "(world:camera_optical_frame over motion capture's world -> base_link and the robot's static mount)")
+    p.add_argument("--stamps", choices=("header", "recorded"), default="header",
+                   help="a frame's time: its header stamp (default, as the node takes it) or when the bag recorded it, for "
+                   "a driver that leaves stamps at 0 or stamps on another clock (ground truth is still looked up by its "
+                   "own header stamps)")
     p.add_argument("--rectified", action="store_true", help="the bag's images are rectified (image_rect): use camera_info's "
                    "P, without distortion")
     p.add_argument("--camera", type=Path, default=None, help="calibration as a ROS camera_info YAML (what camera_calibration "
@@ -422,16 +428,15 @@ def main(args: argparse.Namespace) -> int:
     base_fe = Frontend(None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
                               "resize_width": cfg["resize_width"]}) if args.baseline else None
     out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
+    reading = {"camera": camera, "rectified": params["rectified"], "recorded": args.stamps == "recorded"}
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
-        run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics,
-                                      camera=camera, rectified=params["rectified"])
+        run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics, **reading)
         runs.append(run)
         if base_fe is not None:
             base, _, _ = process_bag(reader, None, base_fe, truth, progress=not args.no_progress, topics=topics,
-                                     camera=camera, rectified=params["rectified"],
-                                     log=lambda _: None)  # the same frames: said once, by the first pass
+                                     **reading, log=lambda _: None)  # the same frames: said once, by the first pass
             base.name = "SIFT+ratio+MAGSAC++"
             runs.append(base)
     except (KeyboardInterrupt, _Terminated):
@@ -487,7 +492,8 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
     try:
-        stats = play_live(reader, out, args.rate, live_node_args(args), camera=camera, topics=topics)
+        stats = play_live(reader, out, args.rate, live_node_args(args), camera=camera, topics=topics,
+                          recorded=args.stamps == "recorded")
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130
