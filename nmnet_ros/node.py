@@ -290,6 +290,8 @@ class NMNetNode(Node):
     def _on_image(self, msg) -> None:
         """Executor callback: O(1), puts the message in the latest-frame slot."""
         self.stats.received += 1
+        if self.params["stamp_source"] == "arrival":  # a driver that does not stamp: the time it arrives, now
+            msg.header.stamp = self.get_clock().now().to_msg()
         if not self.image_reliable and not self._large_hint and len(msg.data) > LARGE_FRAME_BYTES:
             self._large_hint = True  # said once: with a large-frames profile on the camera's side they all arrive
             self.get_logger().info(f"frames of {len(msg.data) / 1e6:.1f} MB on a best-effort subscription: "

@@ -48,6 +48,9 @@ PARAMS: dict[str, tuple] = {
                                 "scaled by sqrt(200 / n); the default is a conservative bound", (1e-4, 90.0)),
     "pose_sigma_direction": (DIR_SIGMA, "published sigma per component of the unit translation direction at 200 "
                              "selected matches, scaled as the rotation's", (1e-5, 2.0)),
+    "stamp_source": ("header", "a frame's time: header (its stamp) or arrival (the node's clock when it arrives, for a "
+                     "driver that leaves stamps at 0 or stamps on another clock; the outputs carry that time)",
+                     ("header", "arrival")),
     "qos": ("auto", "input QoS: auto (images reliable when every image publisher offers it, else best effort, "
                     "re-checked every second), sensor_data (best effort, depth 5) or reliable (depth 10)",
             ("auto", "sensor_data", "reliable")),

@@ -113,15 +113,17 @@ def stamp_order(last: float | None, stamp: float, time_jump_s: float) -> str | N
     return "duplicate_stamp" if stamp == last else "out_of_order_stamp"
 
 
-def stamp_warning(kind: str, last: float | None, stamp: float) -> str:
-    """What the node and the replay say about a frame :func:`stamp_order` did not take in order."""
+def stamp_warning(kind: str, last: float | None, stamp: float, arrival: str = "stamp_source:=arrival") -> str:
+    """What the node and the replay say about a frame :func:`stamp_order` did not take in order; ``arrival``: how to
+    stamp frames by their arrival instead, where they say so (the node's parameter; the replay's option)."""
     if kind == "time_jump":
         return (f"frame stamp {stamp:.6f} is {last - stamp:.1f} s before the previous one (a bag played in a loop, or "
                 "the clock was reset): restarting from this frame")
     if kind == "negative_stamp":
         return (f"frame stamp {stamp:.6f} is negative: skipped (ROS time starts at 0; check the driver's clock, or how "
                 "the bag was restamped)")
-    unstamped = " (a stamp of 0: does the camera driver stamp its frames?)" if stamp == 0 else ""
+    unstamped = f" (a stamp of 0: does the camera driver stamp its frames? If not, {arrival} stamps them on arrival)" \
+        if stamp == 0 else ""
     return f"frame stamp {stamp:.6f} is not after the previous {last:.6f} ({kind}): skipped{unstamped}"
 
 

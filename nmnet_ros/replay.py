@@ -131,7 +131,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     frames are stamped with the time the bag recorded them (``--stamps recorded``).
     """
     frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded)
-    hint = "as the node does" if recorded else "as the node does; --stamps recorded stamps each frame with its recording time"
+
     run = Run(fe.config["selector"])
     notes = Notes(log)
     n_frames, prev_gt, overlay, last_note, last_stamp = 0, None, None, None, None
@@ -160,7 +160,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
                 continue
             order = stamp_order(last_stamp, f.stamp, fe.config["time_jump_s"])
             if order is not None:
-                notes(order, f"{stamp_warning(order, last_stamp, f.stamp)} ({hint})")
+                notes(order, stamp_warning(order, last_stamp, f.stamp, "--stamp-source arrival") + " (as the node does)")
                 if order != "time_jump":
                     continue
             last_stamp = f.stamp
@@ -319,9 +319,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gt-tf", type=gt_frames, default=None, metavar="PARENT:CHILD",
                    help="ground truth from /tf and /tf_static: CHILD's pose in PARENT, chained through the tree as tf2 does "
                    "(world:camera_optical_frame over motion capture's world -> base_link and the robot's static mount)")
-    p.add_argument("--stamps", choices=("header", "recorded"), default="header",
-                   help="a frame's time: its header stamp (default, as the node takes it) or when the bag recorded it, for "
-                   "a driver that leaves stamps at 0 or stamps on another clock (ground truth is still looked up by its "
+    p.add_argument("--stamp-source", default=None, choices=("header", "arrival"),
+                   help="a frame's time (the node's stamp_source): its header stamp (default) or its arrival, when the bag "
+                   "recorded it, for a driver that leaves stamps at 0 or stamps on another clock (ground truth keeps its "
                    "own header stamps)")
     p.add_argument("--rectified", action="store_true", help="the bag's images are rectified (image_rect): use camera_info's "
                    "P, without distortion")
@@ -348,7 +348,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 FLAGS = {"weights": "weights", "detector": "detector", "max_keypoints": "max_keypoints", "resize_width": "resize_width",
-         "precision": "nmnet_precision"}  # replay option -> the node parameter it sets
+         "precision": "nmnet_precision", "stamp_source": "stamp_source"}  # replay option -> the node parameter it sets
 
 
 NODE_ESTIMATORS = {selector: estimator for estimator, selector in SELECTORS.items()}  # selector -> pose_estimator
@@ -428,7 +428,7 @@ def main(args: argparse.Namespace) -> int:
     base_fe = Frontend(None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
                               "resize_width": cfg["resize_width"]}) if args.baseline else None
     out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
-    reading = {"camera": camera, "rectified": params["rectified"], "recorded": args.stamps == "recorded"}
+    reading = {"camera": camera, "rectified": params["rectified"], "recorded": params["stamp_source"] == "arrival"}
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
@@ -492,8 +492,9 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
     try:
-        stats = play_live(reader, out, args.rate, live_node_args(args), camera=camera, topics=topics,
-                          recorded=args.stamps == "recorded")
+        recorded = params["stamp_source"] == "arrival"  # the player stamps frames as the bag recorded them; the node keeps it
+        node_args = live_node_args(args) + (["-p", "stamp_source:=header"] if recorded else [])
+        stats = play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded)
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130

@@ -535,11 +535,11 @@ def test_a_driver_that_never_stamps_is_named_a_few_times_then_counted(raw_bag, t
     assert out.count("(further 'duplicate_stamp' frames are counted, not named)") == 1, out
     assert "duplicate_stamp: 5 frames in all" in out, out
     assert s["processed"] == 1 and s["warnings"] == {"duplicate_stamp": 5}, s
-    assert out.count("--stamps recorded stamps each frame with its recording time") == 3, out
+    assert out.count("If not, --stamp-source arrival stamps them on arrival") == 3, out
     keys = ("processed", "scored_pairs", "median_rot_deg", "median_trans_deg", "auc5")
     _, exact = replay_json(raw_bag, tmp_path, name="exact")
-    for mode in ([], ["--live", "--rate", "0.5"]):  # the time the bag recorded each frame: every frame, scored as stamped
-        r, s = replay_json(tmp_path / "unstamped", tmp_path, "--stamps", "recorded", *mode, name="recorded")
+    for mode in ([], ["--live", "--rate", "0.5"]):  # arrival: when the bag recorded each frame; every frame, scored
+        r, s = replay_json(tmp_path / "unstamped", tmp_path, "--stamp-source", "arrival", *mode, name="recorded")
         assert r.returncode == 0 and "duplicate_stamp" not in r.stdout + r.stderr, (mode, r.stdout, r.stderr)
         if mode:  # the node as its own process: every frame processed, the pairs --live scores, a good pose
             assert s["processed"] == 6 and s["scored_pairs"] == 4 and s["median_rot_deg"] < 0.5, s  # as --live scores

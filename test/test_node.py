@@ -307,7 +307,8 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
                    "FASTDDS_DEFAULT_PROFILES_FILE=", "600x370 but camera_info describes 1226x370, which is not the same image scaled",
                    "613x185 but camera_info describes 1226x370: K scaled by 0.5 to fit",
                    "s before the previous one (a bag played in a loop, or the clock was reset): restarting",
-                   "skipped (a stamp of 0: does the camera driver stamp its frames?)",
+                   "skipped (a stamp of 0: does the camera driver stamp its frames? If not, stamp_source:=arrival stamps "
+                   "them on arrival)",
                    "frame stamp -2.000000 is negative: skipped (ROS time starts at 0"):
         assert needle in out, f"no clear warning containing {needle!r}:\n{out}"
 
@@ -592,6 +593,27 @@ def test_parameters_change_while_running(ros, tmp_path):
         np.testing.assert_allclose(np.diag(cov), [0.004**2 * 200 / n] * 3 + [np.radians(0.05) ** 2 * 200 / n] * 3, rtol=1e-9)
     assert "parameters changed: {'score_threshold': 0.95}" in node.output()
     assert "NM-Net arithmetic: " in node.output()  # what the network runs in on this CPU, said at start-up
+
+
+def test_a_driver_that_does_not_stamp_is_stamped_on_arrival(ros, tmp_path):
+    """Frames stamped 0 (a driver that does not stamp): skipped with header stamps, said so with the remedy; with
+    stamp_source arrival (switched on while running) each takes the node's clock when it arrives, so the chain goes
+    on, and the outputs carry that time."""
+    with kitti_node(ros, tmp_path, 60) as (seq, peer, node):
+        peer.pub_info.publish(kitti_info(seq))
+        peer.pub_img.publish(image_msg(seq.image(61), 0.0))
+        assert wait_diag(peer, "warn_out_of_order_stamp", 1)  # 0 after the first frame's 1.0 s
+        assert all(r.successful for r in set_params(peer, {"stamp_source": "arrival"}))
+        before = time.time()  # the node's clock: system time (no use_sim_time)
+        for n, i in enumerate((62, 63), 1):
+            peer.pub_info.publish(kitti_info(seq))
+            peer.pub_img.publish(image_msg(seq.image(i), 0.0))
+            assert spin_until(peer.node, lambda n=n: len(peer.matches) >= n and len(peer.poses) >= n, 30.0), i
+        stamps = peer.stamps(peer.matches)
+        assert before < stamps[0] < stamps[1] < time.time() and peer.stamps(peer.poses) == stamps, stamps
+        assert len(published_matches(peer, stamps[1])) > 50 and not no_estimate(peer.pose_for(stamps[1]))
+        assert peer.count("warn_out_of_order_stamp") == 1 and peer.count("warn_duplicate_stamp") == 0
+    assert "If not, stamp_source:=arrival stamps them on arrival" in node.output()
 
 
 @pytest.mark.parametrize("name, value", [("matching", "fancy"), ("pose_threshold_px", "0.0"), ("max_keypoints", "lots")],
