@@ -29,6 +29,12 @@ ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
     "rgb16": (3, np.dtype(np.uint16), cv2.COLOR_RGB2BGR),
     "bgra16": (4, np.dtype(np.uint16), cv2.COLOR_BGRA2BGR),
     "rgba16": (4, np.dtype(np.uint16), cv2.COLOR_RGBA2BGR),
+    # OpenCV's type names: what cv_bridge's cv2_to_imgmsg(frame) sends without an encoding ("passthrough"), in
+    # OpenCV's BGR(A) order
+    "8uc3": (3, np.dtype(np.uint8), None),
+    "8uc4": (4, np.dtype(np.uint8), cv2.COLOR_BGRA2BGR),
+    "16uc3": (3, np.dtype(np.uint16), None),
+    "16uc4": (4, np.dtype(np.uint16), cv2.COLOR_BGRA2BGR),
     # raw sensor mosaics (machine-vision drivers), demosaiced here; the pattern names the top-left 2x2 block
     **{f"bayer_{p}{bits}": (1, np.dtype(np.uint8 if bits == 8 else np.uint16), getattr(cv2, f"COLOR_Bayer{p.upper()}2BGR"))
        for p in ("rggb", "bggr", "gbrg", "grbg") for bits in (8, 16)},

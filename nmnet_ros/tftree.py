@@ -77,10 +77,9 @@ class TfTree:
         return f"{words} (moving: {', '.join(f'{a}:{b}' for (a, b), _ in chain if self.moves((a, b))) or 'none'})"
 
     def trajectory(self, start: str, goal: str) -> Trajectory:
-        """``goal``'s pose in ``start`` over time. The poses come at the
-        stamps of the chain's sparsest moving edge; the other moving edges are looked up within half their spacing
-        (the ground-truth rule) and a stamp where one has none is left out; an edge that never changes counts at
-        any time (its latest value). TfError when the chain has no edge that moves."""
+        """``goal``'s pose in ``start`` over time, at the stamps of the chain's sparsest moving edge. The other moving
+        edges are looked up within half their spacing (the ground-truth rule), and a stamp where one has none is left
+        out; an edge that never changes counts at any time (its latest value). TfError when no edge is on /tf."""
         chain = self.chain(start, goal)
         tracks = {e: Trajectory(np.array([t for t, _ in self.stamped[e]]), np.array([T for _, T in self.stamped[e]]))
                   for e, _ in chain}

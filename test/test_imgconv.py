@@ -58,6 +58,7 @@ def test_an_odd_width_yuv422_image_is_refused():
 @pytest.mark.parametrize("encoding, order, dtype", [
     ("rgb8", "rgb", np.uint8), ("bgra8", "bgra", np.uint8), ("rgba8", "rgba", np.uint8),
     ("bgr16", "bgr", np.uint16), ("rgb16", "rgb", np.uint16), ("bgra16", "bgra", np.uint16), ("rgba16", "rgba", np.uint16),
+    ("8UC3", "bgr", np.uint8), ("8UC4", "bgra", np.uint8), ("16UC3", "bgr", np.uint16), ("16UC4", "bgra", np.uint16),
 ])
 def test_colour_encodings_come_out_as_bgr(encoding, order, dtype):
     scale = 1 if dtype == np.uint8 else 256
