@@ -358,14 +358,25 @@ def camera_namespace(topic: str) -> str:
     return image_base(topic).rpartition("/")[0]
 
 
+def is_depth(topic: str) -> bool:
+    """Whether an image topic's name says it carries depth (/camera/depth/image_rect_raw, /aligned_depth_to_color/)."""
+    return "depth" in re.split(r"[^a-z0-9]+", topic.lower())
+
+
 def pick_image(topics: dict[str, str], wanted: str | None) -> tuple[str | None, str | None]:
-    """The image topic (``wanted``, else the only one, else the raw one of one camera recorded with its transports
-    too, as image_transport republishes it) and a note when a choice was made."""
+    """The image topic (``wanted``, else the only one, else of one camera recorded with its transports too, as
+    image_transport republishes it, the raw one; depth images beside it, as an RGB-D camera records them, are not
+    frames for the front end) and a note when a choice was made."""
     found = sorted(t for t, m in topics.items() if m in IMAGE_TYPES)
-    bases = {image_base(t) for t in found}
-    if wanted is None and len(found) > 1 and len(bases) == 1 and (raw := bases.pop()) in found:
-        others = ", ".join(t for t in found if t != raw)
-        return raw, f"image topic {raw} taken, not the same frames on {others} (choose with --image-topic)"
+    frames = [t for t in found if not is_depth(t)]
+    bases = {image_base(t) for t in frames}
+    if wanted is None and len(found) > 1 and len(bases) == 1:
+        base = bases.pop()
+        chosen = base if base in frames else frames[0] if len(frames) == 1 else None
+        if chosen is not None:
+            same, depth = [t for t in frames if t != chosen], [t for t in found if t not in frames]
+            why = [f"the same frames on {', '.join(same)}"] * bool(same) + [f"the depth images on {', '.join(depth)}"] * bool(depth)
+            return chosen, f"image topic {chosen} taken, not {' nor '.join(why)} (choose with --image-topic)"
     return pick_topic(topics, IMAGE_TYPES, "image", wanted), None
 
 

@@ -793,6 +793,41 @@ def test_ground_truth_from_ros1_tf_messages_of_before_tf2(tmp_path):
     assert truth.stamps.tolist() == [10, 11, 12, 13, 14] and truth.poses[:, 0, 3].tolist() == [0, 1, 2, 3, 4]
 
 
+def test_an_rgbd_cameras_depth_images_are_not_taken_for_its_frames(tmp_path):
+    """An RGB-D camera's bag (TUM RGB-D's, a RealSense's) holds depth images beside the frames: the frames are taken,
+    and said so, with their own camera_info (the replay asked to choose). Two cameras still ask."""
+    from nmnet_ros.bags import is_depth, pick_image
+
+    image, info = "sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo"
+    for topic in ("/camera/depth/image", "/camera/aligned_depth_to_color/image_raw", "/cam/depth_registered/image_raw",
+                  "/camera/depth/image_raw/compressedDepth"):
+        assert is_depth(topic), topic
+    for topic in ("/camera/rgb/image_color", "/depthai/rgb/image", "/cam/image_raw"):
+        assert not is_depth(topic), topic
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    ts = typestore()
+    with Writer(tmp_path / "tum", version=9, storage_plugin=StoragePlugin.MCAP) as w:  # TUM RGB-D's topics, no messages
+        for topic, mtype in (("/camera/rgb/image_color", image), ("/camera/rgb/camera_info", info),
+                             ("/camera/depth/image", image), ("/camera/depth/camera_info", info),
+                             ("/tf", "tf2_msgs/msg/TFMessage"), ("/imu", "sensor_msgs/msg/Imu")):
+            w.add_connection(topic, mtype, typestore=ts)
+    tum = BagReader(tmp_path / "tum")
+    assert choose_topics(tum) == {"image": "/camera/rgb/image_color", "camera_info": "/camera/rgb/camera_info"}
+    assert tum.warnings == ["image topic /camera/rgb/image_color taken, not the depth images on /camera/depth/image "
+                            "(choose with --image-topic)"]
+    realsense = {"/c/color/image_raw": image, "/c/color/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+                 "/c/depth/image_rect_raw": image, "/c/aligned_depth_to_color/image_raw": image}
+    assert pick_image(realsense, None) == ("/c/color/image_raw", "image topic /c/color/image_raw taken, not the same frames "
+                                           "on /c/color/image_raw/compressed nor the depth images on "
+                                           "/c/aligned_depth_to_color/image_raw, /c/depth/image_rect_raw (choose with "
+                                           "--image-topic)")
+    assert pick_image({"/c/depth/image_rect_raw": image}, None) == ("/c/depth/image_rect_raw", None)  # the only one
+    with pytest.raises(BagError, match=r"several image topics \(/c/aligned_depth_to_color/image_raw, /c/color/image_raw, "
+                                       r"/c/color/image_raw/compressed, /c/depth/image_rect_raw, /c/infra1/image_rect_raw\)"):
+        pick_image({**realsense, "/c/infra1/image_rect_raw": image}, None)
+
+
 def test_a_pose_topic_is_ground_truth_by_itself_only_when_its_name_says_so():
     """Motion-capture and simulator names are taken; a robot's other poses are not; two named ones ask for a choice,
     listing the whole bag."""
