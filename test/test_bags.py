@@ -793,6 +793,76 @@ def test_ground_truth_from_ros1_tf_messages_of_before_tf2(tmp_path):
     assert truth.stamps.tolist() == [10, 11, 12, 13, 14] and truth.poses[:, 0, 3].tolist() == [0, 1, 2, 3, 4]
 
 
+def tum_rgbd_bag(src: Path, dst: Path, cam_in_body: np.ndarray) -> None:
+    """The ROS 1 bag ``src`` laid out as TUM RGB-D's bags are: rgb8 frames on /camera/rgb/image_color with their
+    camera_info, a 32FC1 depth image beside each, and the ground truth only as tf/tfMessage on /tf: motion capture's
+    /world -> /kinect, then /kinect -> /openni_camera -> /openni_rgb_optical_frame republished with every message
+    (``cam_in_body``: the optical frame in /kinect)."""
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys.msg import get_types_from_msg
+
+    from nmnet_ros.posemsg import rot_to_quat
+
+    ts = typestore(ros1=True)
+    ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf/msg/tfMessage"))
+    T = ts.types
+    mount = np.eye(4)
+    mount[:3, 3] = [0.0, -0.02, 0.0]
+
+    def transform(header, parent: str, child: str, pose: np.ndarray):
+        head = T["std_msgs/msg/Header"](seq=header.seq, stamp=header.stamp, frame_id=parent)
+        return T["geometry_msgs/msg/TransformStamped"](
+            header=head, child_frame_id=child,
+            transform=T["geometry_msgs/msg/Transform"](translation=T["geometry_msgs/msg/Vector3"](*pose[:3, 3]),
+                                                       rotation=T["geometry_msgs/msg/Quaternion"](*rot_to_quat(pose[:3, :3]))))
+
+    image, tf_type = "sensor_msgs/msg/Image", "tf/msg/tfMessage"
+    with Reader(src) as r, Writer(dst) as w:
+        out = {topic: w.add_connection(topic, mtype, typestore=ts) for topic, mtype in (
+            ("/camera/rgb/image_color", image), ("/camera/rgb/camera_info", "sensor_msgs/msg/CameraInfo"),
+            ("/camera/depth/image", image), ("/tf", tf_type))}
+        for c, t, raw in r.messages():
+            msg = ts.deserialize_ros1(raw, c.msgtype)
+            if c.msgtype == image:
+                h, wd = msg.height, msg.width
+                rgb = np.repeat(np.asarray(msg.data).reshape(h, wd, 1), 3, axis=2).ravel()
+                w.write(out["/camera/rgb/image_color"], t, ts.serialize_ros1(
+                    T[image](header=msg.header, height=h, width=wd, encoding="rgb8", is_bigendian=0, step=3 * wd, data=rgb), image))
+                depth = np.ones((h, wd), np.float32).view(np.uint8).ravel()
+                w.write(out["/camera/depth/image"], t, ts.serialize_ros1(
+                    T[image](header=msg.header, height=h, width=wd, encoding="32FC1", is_bigendian=0, step=4 * wd, data=depth),
+                    image))
+            elif c.msgtype.endswith("CameraInfo"):
+                w.write(out["/camera/rgb/camera_info"], t, raw)
+            elif c.topic == "/tf":
+                cam = msg.transforms[0]
+                body = pose_from_msg(cam) @ np.linalg.inv(cam_in_body)
+                tree = [transform(cam.header, "/world", "/kinect", body),
+                        transform(cam.header, "/kinect", "/openni_camera", mount),
+                        transform(cam.header, "/openni_camera", "/openni_rgb_optical_frame", np.linalg.inv(mount) @ cam_in_body)]
+                w.write(out["/tf"], t, ts.serialize_ros1(T[tf_type](transforms=tree), tf_type))
+
+
+def test_a_tum_rgbd_style_ros1_bag_replays_with_its_tf_ground_truth(tmp_path):
+    """A ROS 1 bag as TUM RGB-D records them (colour and depth images, ground truth only on /tf as tf/tfMessage, the
+    camera three transforms below the motion-capture frame): without --image-topic the colour frames are taken, and
+    --gt-tf /world:/openni_rgb_optical_frame scores them as the bag's own camera poses do."""
+    raw = tmp_path / "raw.bag"
+    assert make_bag(data_dir("kitti-07"), raw, "ros1", frames=range(60, 66)) == 6
+    cam_in_body = np.eye(4)
+    cam_in_body[:3, :3], cam_in_body[:3, 3] = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]), [0.1, 0.0, 0.05]
+    tum_rgbd_bag(raw, tmp_path / "tum.bag", cam_in_body)
+    keys = ("processed", "scored_pairs", "median_rot_deg", "median_trans_deg", "auc5", "auc10")
+    r, own = replay_json(raw, tmp_path, name="own")
+    assert r.returncode == 0 and own["scored_pairs"] == 5, (r.stderr, own)
+    r, tum = replay_json(tmp_path / "tum.bag", tmp_path, "--gt-tf", "/world:/openni_rgb_optical_frame", name="tum")
+    assert r.returncode == 0, r.stderr
+    # the same poses (to 4e-15) and frames; rgb8's grey (float32 weights summing to 1 within 1e-7) moves errors by 1e-5
+    assert [tum[k] for k in keys] == pytest.approx([own[k] for k in keys], rel=1e-4), (tum, own)
+    assert "taken, not the depth images on /camera/depth/image" in r.stdout, r.stdout
+    assert "chained world -> kinect -> openni_camera -> openni_rgb_optical_frame (moving: world:kinect)" in r.stdout
+
+
 def test_an_rgbd_cameras_depth_images_are_not_taken_for_its_frames(tmp_path):
     """An RGB-D camera's bag (TUM RGB-D's, a RealSense's) holds depth images beside the frames: the frames are taken,
     and said so, with their own camera_info (the replay asked to choose). Two cameras still ask."""
