@@ -203,9 +203,9 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
 def truth_missed(truth: Trajectory | None, stamps: list[float]) -> str | None:
     """What to say when the ground truth has a pose for none of the frames (stamped on another clock, or of another
     recording), instead of a summary that silently scores nothing."""
-    if truth is None or not stamps or truth.lookup(np.asarray(stamps))[1].any():
+    if truth is None or not stamps or np.isfinite(truth.poses_at(np.asarray(stamps))[:, 0, 0]).any():
         return None
-    return (f"the ground truth has no pose within half its spacing of any frame (poses {truth.stamps[0]:.3f} .. "
+    return (f"the ground truth has no pose at any frame's stamp (poses {truth.stamps[0]:.3f} .. "
             f"{truth.stamps[-1]:.3f} s, frames {min(stamps):.3f} .. {max(stamps):.3f} s): nothing is scored; the two "
             "must be stamped on the same clock")
 
@@ -388,7 +388,7 @@ def gt_frames(text: str) -> tuple[str, str]:
 
 def ground_truth(reader: BagReader, args: argparse.Namespace) -> Trajectory | None:
     """What the replay scores against: the ``--gt`` TUM file, else ``--gt-tf``'s transforms on /tf, else the bag's
-    ground-truth topic (each looked up by stamp within half its spacing), else nothing; moved to the camera by
+    ground-truth topic (each looked up by stamp: :meth:`Trajectory.poses_at`), else nothing; moved to the camera by
     ``--gt-camera`` when it tracks a body. A file or transform that is not there stops the replay, naming it."""
     if args.gt is not None:
         truth = read_tum(args.gt)

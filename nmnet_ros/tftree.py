@@ -78,8 +78,9 @@ class TfTree:
 
     def trajectory(self, start: str, goal: str) -> Trajectory:
         """``goal``'s pose in ``start`` over time, at the stamps of the chain's sparsest moving edge. The other moving
-        edges are looked up within half their spacing (the ground-truth rule), and a stamp where one has none is left
-        out; an edge that never changes counts at any time (its latest value). TfError when no edge is on /tf."""
+        edges are looked up as ground truth is (:meth:`Trajectory.poses_at`: interpolated between their transforms),
+        and a stamp where one has none is left out; an edge that never changes counts at any time (its latest value).
+        TfError when no edge is on /tf."""
         chain = self.chain(start, goal)
         tracks = {e: Trajectory(np.array([t for t, _ in self.stamped[e]]), np.array([T for _, T in self.stamped[e]]))
                   for e, _ in chain}
@@ -95,8 +96,9 @@ class TfTree:
             if edge == clock:
                 T = track.poses
             elif edge in moving:
-                i, found = track.lookup(stamps)
-                T, ok = track.poses[i], ok & found
+                T = track.poses_at(stamps)
+                found = np.isfinite(T[:, 0, 0])
+                T[~found], ok = np.eye(4), ok & found  # a stamp it has no transform for is left out
             else:
                 T = np.broadcast_to(track.poses[-1], (len(stamps), 4, 4))
             poses = poses @ (np.linalg.inv(T) if up else T)

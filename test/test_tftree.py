@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nmnet_ros.datasets import quat_to_rot
+from nmnet_ros.datasets import between, quat_to_rot
 from nmnet_ros.tftree import TfError, TfTree
 
 RNG = np.random.default_rng(7)
@@ -48,9 +48,10 @@ def test_a_chain_down_the_tree_composes_each_edge_at_the_moving_edges_stamps():
         tree.trajectory("camera_link", "base_link")
 
 
-def test_two_moving_edges_at_their_own_rates_meet_within_half_a_spacing():
+def test_two_moving_edges_at_their_own_rates_are_interpolated_to_the_sparser_ones_stamps():
     """world -> odom at 10 Hz, odom -> base_link at 50 Hz, 3 ms late: the chain comes at the sparser edge's stamps,
-    the other looked up nearest; a stamp where it has a gap is left out, not paired with another time."""
+    the other interpolated between its two transforms around each; a stamp in a gap of it is left out, not paired
+    with another time."""
     tree, slow, fast = TfTree(), {}, {}
     for t in np.round(np.arange(0, 1, 0.1), 6):
         slow[t] = pose()
@@ -61,9 +62,10 @@ def test_two_moving_edges_at_their_own_rates_meet_within_half_a_spacing():
             tree.add("odom", "base_link", t, fast[t])
     truth = tree.trajectory("world", "base_link")
     assert 0.5 not in np.round(truth.stamps, 6) and len(truth.stamps) == 9
-    for t, T in zip(truth.stamps, truth.poses, strict=True):
-        near = min(fast, key=lambda s: abs(s - t))
-        assert np.allclose(T, slow[round(t, 6)] @ fast[near])
+    assert np.allclose(truth.poses[0], slow[0.0] @ fast[0.003])  # before the first: the nearest, 3 ms away
+    for t, T in zip(truth.stamps[1:], truth.poses[1:], strict=True):
+        before, after = max(s for s in fast if s < t), min(s for s in fast if s > t)
+        assert np.allclose(T, slow[round(t, 6)] @ between(fast[before], fast[after], (t - before) / (after - before)))
 
 
 def test_frames_no_chain_joins_are_named_with_the_edges_there_are():
