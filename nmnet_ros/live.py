@@ -86,7 +86,7 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
 
     ``camera``: published as camera_info with every image instead of the bag's camera_info; ``topics``: the
     :func:`live_topics` to play (default: the bag's only image and camera_info topics); ``recorded``: each message
-    is restamped with the time the bag recorded it (``--stamps recorded``).
+    is restamped with the time the bag recorded it (``--stamp-source arrival``).
     """
     import rclpy
     from rclpy.qos import QoSProfile, qos_profile_sensor_data

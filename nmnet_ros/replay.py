@@ -128,10 +128,9 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
 
     ``truth``: the ground truth the frames are scored against (:func:`ground_truth`), by stamp; ``camera``: the
     calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified; ``recorded``: the
-    frames are stamped with the time the bag recorded them (``--stamps recorded``).
+    frames are stamped with the time the bag recorded them (``--stamp-source arrival``).
     """
     frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded)
-
     run = Run(fe.config["selector"])
     notes = Notes(log)
     n_frames, prev_gt, overlay, last_note, last_stamp = 0, None, None, None, None
