@@ -512,11 +512,13 @@ def _trajectory(stamped: list[tuple[float, np.ndarray]]) -> Trajectory | None:
     return Trajectory(np.array([t for t, _ in stamped]), np.array([T for _, T in stamped])) if stamped else None
 
 
-def tf_ground_truth(reader: BagReader, topic: str, parent: str, child: str) -> Trajectory:
+def tf_ground_truth(reader: BagReader, topic: str, parent: str, child: str, camera_frame: str = "") -> Trajectory:
     """Ground truth from the transforms that lead from ``parent`` to ``child`` on a TF ``topic`` (/tf) and on /tf_static:
     one edge a motion-capture system or simulator publishes, or a chain through the tree (:class:`~.tftree.TfTree`:
     motion capture's world -> base_link, then the robot's base_link -> camera_optical_frame). The chain is noted in
-    the reader's warnings; BagError naming the transforms there are when none lead from one frame to the other."""
+    the reader's warnings, and so is a ``child`` other than ``camera_frame`` (the images' frame_id) when the tree has
+    that: scoring a camera_link (x forward) as the optical frame (z forward) gives errors of 90 degrees. BagError
+    naming the transforms there are when none lead from one frame to the other."""
     topic = pick_topic(reader.topics, TF_TYPES, "gt", topic)
     static = {t for t, m in reader.topics.items() if t == "/tf_static" and m in TF_TYPES} - {topic}
     tree = TfTree()
@@ -529,4 +531,16 @@ def tf_ground_truth(reader: BagReader, topic: str, parent: str, child: str) -> T
         raise BagError(f"--gt-tf {parent}:{child}: {e} (on {' and '.join([topic, *static])})") from e
     if len(tree.chain(parent, child)) > 1:  # say which way it went, for the user to check
         reader.warnings.append(f"--gt-tf {parent}:{child}: chained {tree.route(parent, child)}")
+    if (cam := camera_frame.strip("/")) and cam != child.strip("/") and cam in tree.frames():
+        reader.warnings.append(f"--gt-tf {parent}:{child}: the images are in frame {cam}, which the transforms have; "
+                               f"--gt-tf {parent}:{cam} scores the camera itself (its optical frame: z forward, x right). "
+                               f"Scored against {child}, the camera's own motion is seen from another frame, unless "
+                               "--gt-camera gives the camera's place on it")
     return truth
+
+
+def image_frame(reader: BagReader, topic: str) -> str:
+    """The frame_id of the first message on the image ``topic`` ("" when there is none): the camera's optical frame,
+    as its driver names it."""
+    first = next(iter(reader.messages({topic})), None)
+    return first.msg.header.frame_id if first is not None else ""

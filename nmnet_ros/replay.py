@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bags import BagReader, bag_ground_truth, choose_topics, read_frames, tf_ground_truth
+from .bags import BagReader, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
@@ -385,14 +385,16 @@ def gt_frames(text: str) -> tuple[str, str]:
     return parent, child
 
 
-def ground_truth(reader: BagReader, args: argparse.Namespace) -> Trajectory | None:
+def ground_truth(reader: BagReader, args: argparse.Namespace, image_topic: str) -> Trajectory | None:
     """What the replay scores against: the ``--gt`` TUM file, else ``--gt-tf``'s transforms on /tf, else the bag's
     ground-truth topic (each looked up by stamp: :meth:`Trajectory.poses_at`), else nothing; moved to the camera by
-    ``--gt-camera`` when it tracks a body. A file or transform that is not there stops the replay, naming it."""
+    ``--gt-camera`` when it tracks a body. A file or transform that is not there stops the replay, naming it.
+    ``image_topic``: the frames', whose frame_id ``--gt-tf`` is checked against."""
     if args.gt is not None:
         truth = read_tum(args.gt)
     elif args.gt_tf is not None:
-        truth = tf_ground_truth(reader, args.gt_topic or "/tf", *args.gt_tf)
+        camera_frame = image_frame(reader, image_topic) if args.gt_camera is None else ""
+        truth = tf_ground_truth(reader, args.gt_topic or "/tf", *args.gt_tf, camera_frame=camera_frame)
     else:
         truth = bag_ground_truth(reader, args.gt_topic)
     return truth.moved(args.gt_camera) if truth is not None and args.gt_camera is not None else truth
@@ -415,11 +417,11 @@ def main(args: argparse.Namespace) -> int:
                              "replay without --live for the others")
         if params["weights"]:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
-        truth = ground_truth(reader, args)  # a bad --gt file, --gt-topic or --gt-tf stops here too
+        truth = ground_truth(reader, args, chosen["image"])  # a bad --gt file, --gt-topic or --gt-tf stops here too
         return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params, truth, chosen)
     chosen = choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
     camera = read_camera_yaml(args.camera, chosen["image"]) if args.camera else None  # a bad file stops here, naming it
-    truth = ground_truth(reader, args)  # likewise a bad --gt file, --gt-topic or --gt-tf
+    truth = ground_truth(reader, args, chosen["image"])  # likewise a bad --gt file, --gt-topic or --gt-tf
     cfg = frontend_config(params)
     if args.selector is not None:
         cfg["selector"] = args.selector

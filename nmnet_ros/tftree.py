@@ -37,6 +37,10 @@ class TfTree:
         if static:
             self.static.add(edge)
 
+    def frames(self) -> set[str]:
+        """Every frame the transforms name."""
+        return {frame for edge in self.stamped for frame in edge}
+
     def edges(self) -> str:
         """The edges as ``parent:child``, for errors that say what there is."""
         return ", ".join(f"{a}:{b}" for a, b in sorted(self.stamped)) or "none"

@@ -19,6 +19,7 @@ from nmnet_ros.bags import (
     BagReader,
     bag_ground_truth,
     choose_topics,
+    image_frame,
     pick_ground_truth,
     pose_from_msg,
     read_frames,
@@ -707,7 +708,8 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
 def robot_tf_bag(src: Path, dst: Path, cam_in_body: np.ndarray) -> None:
     """``src`` with its world -> camera_gt transforms replaced by a robot's tree: motion capture's world -> base_link on
     /tf, base_link -> camera_link on /tf_static, camera_link -> camera_optical republished on /tf at every frame and
-    stamped 0.1 s ahead (ROS 1's static_transform_publisher); ``cam_in_body`` is camera_optical in base_link."""
+    stamped 0.1 s ahead (ROS 1's static_transform_publisher); ``cam_in_body`` is camera_optical in base_link, the
+    frame the images name."""
     from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
     from nmnet_ros.posemsg import rot_to_quat
@@ -730,6 +732,10 @@ def robot_tf_bag(src: Path, dst: Path, cam_in_body: np.ndarray) -> None:
         conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
         static = w.add_connection("/tf_static", tf_type, typestore=ts)
         for c, t, raw in r.messages():
+            if c.msgtype == "sensor_msgs/msg/Image":
+                msg = ts.deserialize_cdr(raw, c.msgtype)
+                msg.header.frame_id = "camera_optical"
+                raw = ts.serialize_cdr(msg, c.msgtype)
             if c.topic != "/tf":
                 w.write(conns[c.id], t, raw)
                 continue
@@ -762,6 +768,11 @@ def test_ground_truth_through_a_robots_tf_tree_scores_as_the_cameras_own_poses(r
                                "(moving: world:base_link)"]
     up = tf_ground_truth(BagReader(robot), "/tf", "camera_optical", "world")  # asked the other way round: the inverse
     assert np.allclose(up.poses @ own.poses, np.eye(4))
+    body = BagReader(robot)  # the robot's body, not the frame its images name: said, with the frame to give
+    assert image_frame(body, "/camera/image_raw") == "camera_optical"
+    tf_ground_truth(body, "/tf", "world", "base_link", camera_frame="camera_optical")
+    assert ("--gt-tf world:base_link: the images are in frame camera_optical, which the transforms have; --gt-tf "
+            "world:camera_optical scores the camera itself") in body.warnings[-1], body.warnings
     runs = {}
     for name, bag, frames in (("own", raw_bag, "world:camera_gt"), ("robot", robot, "world:camera_optical")):
         r, runs[name] = replay_json(bag, tmp_path, "--gt-tf", frames, name=name)
@@ -771,6 +782,9 @@ def test_ground_truth_through_a_robots_tf_tree_scores_as_the_cameras_own_poses(r
     assert runs["own"]["scored_pairs"] == 5 and [runs["robot"][k] for k in keys] == pytest.approx(
         [runs["own"][k] for k in keys]), runs
     assert "warning: --gt-tf world:camera_optical: chained world -> base_link" in runs["robot"]["log"]
+    assert "the images are in frame" not in runs["robot"]["log"]  # the camera's own frame: nothing to say
+    r, _ = replay_json(robot, tmp_path, "--gt-tf", "world:base_link", name="body")
+    assert r.returncode == 0 and "warning: --gt-tf world:base_link: the images are in frame camera_optical" in r.stdout
     with pytest.raises(BagError, match="--gt-tf base_link:camera_link: every transform from base_link to camera_link is "
                                        "on /tf_static: no motion to score against"):
         tf_ground_truth(BagReader(robot), "/tf", "base_link", "camera_link")
