@@ -344,6 +344,7 @@ def pick_topic(topics: dict[str, str], types: tuple[str, ...], what: str, wanted
 
 
 TRANSPORTS = ("compressed", "compressedDepth", "theora", "zstd", "ffmpeg", "h264")  # image_transport's sub-topics
+VIDEO_TRANSPORTS = ("theora", "ffmpeg", "h264")  # the ones that carry a video stream, not images
 
 
 def image_base(topic: str) -> str:
@@ -450,7 +451,10 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
     if img_t is None:
         listing = _listing(topics)
         damage = f"; reading stopped at {reader.damage}: the file is damaged or cut short" if reader.damage else ""
-        raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}{damage}")
+        video = [t for t in topics if t.rstrip("/").rpartition("/")[2] in VIDEO_TRANSPORTS]
+        hint = (f"; {', '.join(video)} is video (image_transport's {'/'.join(VIDEO_TRANSPORTS)}), which the replay does "
+                "not decode: record the camera's raw or /compressed topic") if video else ""
+        raise BagError(f"{reader.path}: no sensor_msgs/Image or CompressedImage topic; the bag has: {listing}{damage}{hint}")
     infos = [t for t, m in topics.items() if m == "sensor_msgs/msg/CameraInfo"]
     sibling = f"{camera_namespace(img_t)}/camera_info"
     info_t = sibling if info_topic is None and len(infos) > 1 and sibling in infos else \

@@ -318,6 +318,16 @@ def test_bag_without_images_lists_its_topics(tmp_path):
         read_frames(BagReader(path))
     r = nmnet("replay", str(path), "--out", str(tmp_path / "o.mcap"))
     assert r.returncode == 2 and "/imu/temperature" in r.stderr
+    from rosbags.typesys.msg import get_types_from_msg  # a camera recorded only through ffmpeg_image_transport
+
+    video = "ffmpeg_image_transport_msgs/msg/FFMPEGPacket"
+    ts.register(get_types_from_msg("std_msgs/Header header\nint32 width\nint32 height\nstring encoding\nuint64 pts\n"
+                                   "uint8 flags\nbool is_bigendian\nuint8[] data", video))
+    with Writer(tmp_path / "video", version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        w.add_connection("/camera/image_raw/ffmpeg", video, typestore=ts)
+    with pytest.raises(BagError, match=r"/camera/image_raw/ffmpeg is video \(image_transport's theora/ffmpeg/h264\), which "
+                                       r"the replay does not decode: record the camera's raw or /compressed topic"):
+        read_frames(BagReader(tmp_path / "video"))
 
 
 def test_unwritable_output_fails_before_processing(tmp_path):
