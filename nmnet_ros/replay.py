@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bags import BagReader, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
+from .bags import BagError, BagReader, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
@@ -315,9 +315,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--info-topic", default=None)
     p.add_argument("--gt-topic", default=None, help="the ground-truth topic (a pose, odometry or transform message; "
                    "with --gt-tf, the TFMessage topic, default /tf)")
-    p.add_argument("--gt-tf", type=gt_frames, default=None, metavar="PARENT:CHILD",
-                   help="ground truth from /tf and /tf_static: CHILD's pose in PARENT, chained through the tree as tf2 does "
-                   "(world:camera_optical_frame over motion capture's world -> base_link and the robot's static mount)")
+    p.add_argument("--gt-tf", type=gt_frames, default=None, metavar="PARENT[:CHILD]",
+                   help="ground truth from /tf and /tf_static: CHILD's pose in PARENT (CHILD: the frame the images name, "
+                   "their optical frame), chained through the tree as tf2 does (world:camera_optical_frame over motion "
+                   "capture's world -> base_link and the robot's static mount)")
     p.add_argument("--stamp-source", default=None, choices=("header", "arrival"),
                    help="a frame's time (the node's stamp_source): its header stamp (default) or its arrival, when the bag "
                    "recorded it, for a driver that leaves stamps at 0 or stamps on another clock (ground truth keeps its "
@@ -378,10 +379,11 @@ def gt_camera(text: str) -> np.ndarray:
 
 
 def gt_frames(text: str) -> tuple[str, str]:
-    """``--gt-tf``'s value, PARENT:CHILD, as two frame names."""
+    """``--gt-tf``'s value, PARENT[:CHILD], as two frame names ("" for a CHILD not given: the images' frame)."""
     parent, sep, child = text.partition(":")
-    if not sep or not parent.strip("/") or not child.strip("/"):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected PARENT:CHILD, two frame names (e.g. world:robot)")
+    if not parent.strip("/") or sep and not child.strip("/"):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected PARENT or PARENT:CHILD, frame names (e.g. world, or "
+                                         "world:camera_optical_frame)")
     return parent, child
 
 
@@ -393,8 +395,12 @@ def ground_truth(reader: BagReader, args: argparse.Namespace, image_topic: str) 
     if args.gt is not None:
         truth = read_tum(args.gt)
     elif args.gt_tf is not None:
-        camera_frame = image_frame(reader, image_topic) if args.gt_camera is None else ""
-        truth = tf_ground_truth(reader, args.gt_topic or "/tf", *args.gt_tf, camera_frame=camera_frame)
+        camera_frame = image_frame(reader, image_topic) if args.gt_camera is None or not args.gt_tf[1] else ""
+        parent, child = args.gt_tf
+        if not child and not camera_frame.strip("/"):
+            raise BagError(f"--gt-tf {parent}: the images on {image_topic} name no frame (an empty header.frame_id); "
+                           f"give the camera's frame: --gt-tf {parent}:CHILD")
+        truth = tf_ground_truth(reader, args.gt_topic or "/tf", parent, child or camera_frame, camera_frame=camera_frame)
     else:
         truth = bag_ground_truth(reader, args.gt_topic)
     return truth.moved(args.gt_camera) if truth is not None and args.gt_camera is not None else truth

@@ -632,7 +632,8 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     assert [runs["tf"][k] for k in keys] == pytest.approx([runs["bag"][k] for k in keys]), runs  # make-bag's /tf: the same
     for value, says in (("world:robot", "--gt-tf world:robot: no transforms lead from world to robot; there are "
                                         "world:camera_gt (on /tf)"),
-                        ("world", "--gt-tf: 'world': expected PARENT:CHILD, two frame names")):
+                        ("world", "--gt-tf world:camera: no transforms lead from world to camera"),  # the images' frame
+                        ("world:", "--gt-tf: 'world:': expected PARENT or PARENT:CHILD, frame names")):
         r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--gt-tf", value, "--no-progress")
         assert r.returncode == 2 and says in r.stderr and not (tmp_path / "none.mcap").exists(), r.stderr
     own = bag_ground_truth(BagReader(raw_bag), "/ground_truth/pose")
@@ -764,8 +765,9 @@ def robot_tf_bag(src: Path, dst: Path, cam_in_body: np.ndarray) -> None:
 def test_ground_truth_through_a_robots_tf_tree_scores_as_the_cameras_own_poses(raw_bag, tmp_path):
     """--gt-tf world:camera_optical on a robot's tree (moving world -> base_link, /tf_static base_link -> camera_link,
     a republished camera_link -> camera_optical stamped ahead) chains the three transforms, says so, and gives the
-    scores of the camera's own poses; before, only one published edge was taken ("no such transform"). Frames no chain
-    joins are named with the transforms there are."""
+    scores of the camera's own poses; before, only one published edge was taken ("no such transform"). `--gt-tf world`
+    takes the frame the images name; another frame of the tree is pointed out. Frames no chain joins are named with
+    the transforms there are."""
     cam_in_body = np.eye(4)
     cam_in_body[:3, :3], cam_in_body[:3, 3] = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]), [0.3, 0.0, 0.5]
     robot = tmp_path / "robot_tf"
@@ -784,7 +786,7 @@ def test_ground_truth_through_a_robots_tf_tree_scores_as_the_cameras_own_poses(r
     assert ("--gt-tf world:base_link: the images are in frame camera_optical, which the transforms have; --gt-tf "
             "world:camera_optical scores the camera itself") in body.warnings[-1], body.warnings
     runs = {}
-    for name, bag, frames in (("own", raw_bag, "world:camera_gt"), ("robot", robot, "world:camera_optical")):
+    for name, bag, frames in (("own", raw_bag, "world:camera_gt"), ("robot", robot, "world")):  # the images' frame
         r, runs[name] = replay_json(bag, tmp_path, "--gt-tf", frames, name=name)
         assert r.returncode == 0, r.stderr
         runs[name]["log"] = r.stdout
