@@ -800,6 +800,15 @@ def test_ground_truth_through_a_robots_tf_tree_scores_as_the_cameras_own_poses(r
     with pytest.raises(BagError, match="--gt-tf base_link:camera_link: every transform from base_link to camera_link is "
                                        "on /tf_static: no motion to score against"):
         tf_ground_truth(BagReader(robot), "/tf", "base_link", "camera_link")
+    def no_frame(topic, msg):
+        if topic == "/camera/image_raw":
+            msg.header.frame_id = ""
+        return msg
+
+    rewrite_bag(raw_bag, tmp_path / "no_frame", no_frame)  # a driver that names no frame: CHILD is asked for
+    r = nmnet("replay", str(tmp_path / "no_frame"), "--out", str(tmp_path / "none.mcap"), "--gt-tf", "world", "--no-progress")
+    assert r.returncode == 2 and ("--gt-tf world: the images on /camera/image_raw name no frame (an empty header.frame_id); "
+                                  "give the camera's frame: --gt-tf world:CHILD") in r.stderr, r.stderr
     r = nmnet("replay", str(robot), "--out", str(tmp_path / "none.mcap"), "--gt-tf", "world:camera", "--no-progress")
     says = ("--gt-tf world:camera: no transforms lead from world to camera; there are base_link:camera_link, "
             "camera_link:camera_optical, world:base_link (on /tf and /tf_static)")
