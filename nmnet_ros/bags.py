@@ -463,12 +463,15 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
 
 
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
-                rectified: bool = False, recorded: bool = False) -> tuple[Iterator[Frame], dict[str, str | None]]:
+                rectified: bool = False, recorded: bool = False,
+                window: tuple[float, float] | None = None) -> tuple[Iterator[Frame], dict[str, str | None]]:
     """Frames of a bag with auto-detected topics (ground truth: :func:`bag_ground_truth`); errors name the topics the
     bag has.
 
     ``rectified``: the images are rectified, so their camera is camera_info's P (see caminfo). ``recorded``: each
     frame's stamp is the time the bag recorded it, not its header's (a driver that leaves the stamp at 0).
+    ``window``: only the frames recorded from ``window[0]`` to ``window[1]`` seconds after the first (a part of a
+    long bag; the camera_info before it still counts), and reading stops after it.
     """
     chosen = choose_topics(reader, image_topic, info_topic)
     img_t, info_t = chosen["image"], chosen["camera_info"]
@@ -476,22 +479,29 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
     def gen() -> Iterator[Frame]:
         camera, camera_error = None, None
         pending: list[tuple[float, np.ndarray | None, str | None]] = []
+        first: int | None = None  # the first frame's recording time (ns)
         for m in reader.messages({t for t in (img_t, info_t) if t}):
             if m.topic == info_t:
                 try:
                     camera, camera_error = camera_from_info(m.msg, rectified), None
                 except (CameraError, ValueError) as e:
                     camera_error = str(e)  # the frames keep the last good calibration, if any, and say why not this one
-            else:
-                try:
-                    img, err = decode_image_msg(m.msg, m.msgtype), None
-                except ImageError as e:
-                    img, err = None, str(e)
-                pending.append((m.log_time_ns / 1e9 if recorded else msg_time(m.msg), img, err))
-                # camera_info shares the image stamp and may come just after it
-                while len(pending) > 1:
-                    s, im, er = pending.pop(0)
-                    yield Frame(s, im, er, camera, camera_error)
+                continue
+            first = m.log_time_ns if first is None else first
+            after = (m.log_time_ns - first) / 1e9  # seconds after the first frame
+            if window is not None and after > window[1]:
+                break
+            if window is not None and after < window[0]:
+                continue
+            try:
+                img, err = decode_image_msg(m.msg, m.msgtype), None
+            except ImageError as e:
+                img, err = None, str(e)
+            pending.append((m.log_time_ns / 1e9 if recorded else msg_time(m.msg), img, err))
+            # camera_info shares the image stamp and may come just after it
+            while len(pending) > 1:
+                s, im, er = pending.pop(0)
+                yield Frame(s, im, er, camera, camera_error)
         for s, im, er in pending:
             yield Frame(s, im, er, camera, camera_error)
 

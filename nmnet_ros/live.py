@@ -81,12 +81,14 @@ def live_topics(reader: BagReader, image_topic: str | None = None, info_topic: s
 
 
 def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log: Callable[[str], None] = print,
-              camera: Camera | None = None, topics: dict[str, str | None] | None = None, recorded: bool = False) -> dict:
+              camera: Camera | None = None, topics: dict[str, str | None] | None = None, recorded: bool = False,
+              window: tuple[float, float] | None = None) -> dict:
     """Play, record, stop the node; returns counts and latencies.
 
     ``camera``: published as camera_info with every image instead of the bag's camera_info; ``topics``: the
     :func:`live_topics` to play (default: the bag's only image and camera_info topics); ``recorded``: each message
-    is restamped with the time the bag recorded it (``--stamp-source arrival``).
+    is restamped with the time the bag recorded it (``--stamp-source arrival``); ``window``: play only the messages
+    recorded from ``window[0]`` to ``window[1]`` seconds after the first frame.
     """
     import rclpy
     from rclpy.qos import QoSProfile, qos_profile_sensor_data
@@ -156,7 +158,15 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
                                                      _rclpy_type(first_info.msgtype)))
                 rclpy.spin_once(player, timeout_sec=0.2)
         first_ns, t_start, last_ns = None, time.monotonic(), None  # last_ns: the stamp of the last image published
+        first_frame = None  # the bag's first frame's recording time, where --start/--duration count from
         for m in reader.messages({t for t in (img_t, info_t) if t}):
+            first_frame = m.log_time_ns if first_frame is None and m.topic == img_t else first_frame
+            if window is not None:
+                after = (m.log_time_ns - (first_frame or m.log_time_ns)) / 1e9
+                if after > window[1]:
+                    break
+                if after < window[0] or first_frame is None:  # before it: its calibration was published above
+                    continue
             first_ns = m.log_time_ns if first_ns is None else first_ns
             due = t_start + (m.log_time_ns - first_ns) / 1e9 / rate
             while (wait := due - time.monotonic()) > 0:

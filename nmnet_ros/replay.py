@@ -121,16 +121,18 @@ class Run:
 def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: Trajectory | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
                 log: Callable[[str], None] = print, camera: Camera | None = None,
-                rectified: bool = False, recorded: bool = False) -> tuple[Run, int, list[np.ndarray | None]]:
+                rectified: bool = False, recorded: bool = False,
+                window: tuple[float, float] | None = None) -> tuple[Run, int, list[np.ndarray | None]]:
     """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the last good image.
 
     ``reader``: the bag, opened once (opening lists its topics) and read again for each pass.
 
     ``truth``: the ground truth the frames are scored against (:func:`ground_truth`), by stamp; ``camera``: the
     calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified; ``recorded``: the
-    frames are stamped with the time the bag recorded them (``--stamp-source arrival``).
+    frames are stamped with the time the bag recorded them (``--stamp-source arrival``); ``window``: the part of the
+    bag to replay (``--start``, ``--duration``: seconds after its first frame).
     """
-    frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded)
+    frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded, window=window)
     run = Run(fe.config["selector"])
     notes = Notes(log)
     n_frames, prev_gt, overlay, last_note, last_stamp = 0, None, None, None, None
@@ -193,7 +195,9 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             bar.close()
         run.warnings = notes.counts
         notes.close()
-    for w in [*reader.new_warnings(), truth_missed(truth, [r.stamp for r in run.results])]:
+    empty = f"no frame in --start/--duration's {window[0]:g} .. {window[1]:g} s: the bag ends before" \
+        if window is not None and not n_frames else None
+    for w in [*reader.new_warnings(), truth_missed(truth, [r.stamp for r in run.results]), empty]:
         if w:
             log(f"warning: {w}")
     return run, n_frames, overlay
@@ -319,6 +323,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="ground truth from /tf and /tf_static: CHILD's pose in PARENT (CHILD: the frame the images name, "
                    "their optical frame), chained through the tree as tf2 does (world:camera_optical_frame over motion "
                    "capture's world -> base_link and the robot's static mount)")
+    p.add_argument("--start", type=seconds, default=None, metavar="SEC",
+                   help="replay from this many seconds after the bag's first frame (by recording time, as ros2 bag play "
+                   "--start-offset)")
+    p.add_argument("--duration", type=seconds, default=None, metavar="SEC", help="replay this many seconds (default: to "
+                   "the end)")
     p.add_argument("--stamp-source", default=None, choices=("header", "arrival"),
                    help="a frame's time (the node's stamp_source): its header stamp (default) or its arrival, when the bag "
                    "recorded it, for a driver that leaves stamps at 0 or stamps on another clock (ground truth keeps its "
@@ -378,6 +387,25 @@ def gt_camera(text: str) -> np.ndarray:
         raise argparse.ArgumentTypeError(str(e)) from e
 
 
+def seconds(text: str) -> float:
+    """``--start``'s and ``--duration``'s value: a finite number of seconds, not negative."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected seconds, a number >= 0")
+    return value
+
+
+def replay_window(args: argparse.Namespace) -> tuple[float, float] | None:
+    """The part of the bag ``--start`` and ``--duration`` ask for, in seconds after its first frame (None: all)."""
+    if args.start is None and args.duration is None:
+        return None
+    start = args.start or 0.0
+    return start, start + args.duration if args.duration is not None else float("inf")
+
+
 def gt_frames(text: str) -> tuple[str, str]:
     """``--gt-tf``'s value, PARENT[:CHILD], as two frame names ("" for a CHILD not given: the images' frame)."""
     parent, sep, child = text.partition(":")
@@ -435,7 +463,8 @@ def main(args: argparse.Namespace) -> int:
     base_fe = Frontend(None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
                               "resize_width": cfg["resize_width"]}) if args.baseline else None
     out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
-    reading = {"camera": camera, "rectified": params["rectified"], "recorded": params["stamp_source"] == "arrival"}
+    reading = {"camera": camera, "rectified": params["rectified"], "recorded": params["stamp_source"] == "arrival",
+               "window": replay_window(args)}
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
     try:
@@ -501,7 +530,8 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     try:
         recorded = params["stamp_source"] == "arrival"  # the player stamps frames as the bag recorded them; the node keeps it
         node_args = live_node_args(args) + (["-p", "stamp_source:=header"] if recorded else [])
-        stats = play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded)
+        stats = play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded,
+                          window=replay_window(args))
     except (KeyboardInterrupt, _Terminated):
         print("interrupted: closing the output file", file=sys.stderr)
         return 130

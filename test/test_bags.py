@@ -558,6 +558,26 @@ def test_a_driver_that_never_stamps_is_named_a_few_times_then_counted(raw_bag, t
             assert [s[k] for k in keys] == pytest.approx([exact[k] for k in keys]), (s, exact)
 
 
+def test_start_and_duration_replay_a_part_of_the_bag(raw_bag, tmp_path):
+    """--start/--duration (seconds after the first frame, by recording time, as ros2 bag play's --start-offset) replay
+    that part only, offline and live, with the calibration recorded before it; a window after the bag's end is said,
+    a negative or non-numeric value refused."""
+    stamps = [f.stamp for f in read_frames(BagReader(raw_bag))[0]]
+    assert len(stamps) == 6 and 0.1 < stamps[1] - stamps[0] < 0.105  # KITTI: frames 0.104 s apart, so 0.15 .. 0.45 s holds 3
+    for mode in ([], ["--live", "--rate", "0.5"]):
+        r, s = replay_json(raw_bag, tmp_path, "--start", "0.15", "--duration", "0.3", *mode, name="part")
+        assert r.returncode == 0, r.stderr
+        assert s["frames"] == 3 and s["processed"] == 3 and s["scored_pairs"] == (1 if mode else 2), (mode, s)
+        offline_or_live = read_output(tmp_path / "part.mcap")
+        assert offline_or_live["/nmnet_node/relative_pose"] == 2, offline_or_live
+    r, s = replay_json(raw_bag, tmp_path, "--start", "10", name="late")
+    assert r.returncode == 0 and s["frames"] == 0, s
+    assert "warning: no frame in --start/--duration's 10 .. inf s: the bag ends before" in r.stdout, r.stdout
+    for bad in ("-1", "soon", "nan"):
+        r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--start", bad)
+        assert r.returncode == 2 and f"argument --start: {bad!r}: expected seconds, a number >= 0" in r.stderr, r.stderr
+
+
 def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag, tmp_path):
     """A frame stamped as the one before (a driver republishing) or before it (within time_jump_s) is skipped
     and named, as the node skips it; the next frame in order is related to the last one taken."""
