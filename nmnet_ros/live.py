@@ -162,10 +162,11 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
         for m in reader.messages({t for t in (img_t, info_t) if t}):
             first_frame = m.log_time_ns if first_frame is None and m.topic == img_t else first_frame
             if window is not None:
-                after = (m.log_time_ns - (first_frame or m.log_time_ns)) / 1e9
-                if after > window[1]:
+                if first_frame is None:  # a calibration before the first frame: the first was published above
+                    continue
+                if (m.log_time_ns - first_frame) / 1e9 > window[1]:
                     break
-                if after < window[0] or first_frame is None:  # before it: its calibration was published above
+                if (m.log_time_ns - first_frame) / 1e9 < window[0]:
                     continue
             first_ns = m.log_time_ns if first_ns is None else first_ns
             due = t_start + (m.log_time_ns - first_ns) / 1e9 / rate
