@@ -538,7 +538,9 @@ def tf_ground_truth(reader: BagReader, topic: str, parent: str, child: str, came
     tree = TfTree()
     for m in reader.messages({topic, *static}):
         for tf in m.msg.transforms:
-            tree.add(tf.header.frame_id, tf.child_frame_id, msg_time(tf), pose_from_msg(tf), m.topic in static)
+            p, q = tf.transform.translation, tf.transform.rotation
+            tree.add(tf.header.frame_id, tf.child_frame_id, msg_time(tf), (p.x, p.y, p.z), (q.x, q.y, q.z, q.w),
+                     m.topic in static)
     try:
         truth = tree.trajectory(parent, child)
     except TfError as e:

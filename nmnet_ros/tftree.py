@@ -9,12 +9,14 @@ edge that moves. No ROS needed: the bag reader hands in the transforms.
 
 from __future__ import annotations
 
+from array import array
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .datasets import Trajectory
+from .datasets import Trajectory, quat_to_rot
 
 Edge = tuple[str, str]  # (parent frame, child frame) as published
 
@@ -25,17 +27,32 @@ class TfError(ValueError):
 
 @dataclass
 class TfTree:
-    """Every transform seen, per edge, with whether it came on /tf_static."""
+    """Every transform seen, per edge, as rows of (stamp, x, y, z, qx, qy, qz, qw) packed in an array: 64 bytes each,
+    as a robot's /tf over an hour holds millions (every joint, 50-100 times a second), of which the chain needs a
+    few edges; and which edges came on /tf_static."""
 
-    stamped: dict[Edge, list[tuple[float, np.ndarray]]] = field(default_factory=dict)
+    stamped: dict[Edge, array] = field(default_factory=dict)
     static: set[Edge] = field(default_factory=set)
 
-    def add(self, parent: str, child: str, stamp: float, T: np.ndarray, static: bool = False) -> None:
-        """One transform: ``child``'s pose in ``parent`` (4x4) at ``stamp``; leading slashes (ROS 1) are dropped."""
+    def add(self, parent: str, child: str, stamp: float, xyz: Sequence[float], quat: Sequence[float],
+            static: bool = False) -> None:
+        """One transform: ``child``'s pose in ``parent`` (translation, quaternion x y z w) at ``stamp``; leading
+        slashes (ROS 1) are dropped."""
         edge = (parent.strip("/"), child.strip("/"))
-        self.stamped.setdefault(edge, []).append((stamp, T))
+        self.stamped.setdefault(edge, array("d")).extend((stamp, *xyz, *quat))
         if static:
             self.static.add(edge)
+
+    def rows(self, edge: Edge) -> np.ndarray:
+        """The edge's transforms, (N, 8): stamp, translation, quaternion."""
+        return np.frombuffer(self.stamped[edge], np.float64).reshape(-1, 8)
+
+    def track(self, edge: Edge) -> Trajectory:
+        """The edge's transforms as poses (4x4) over time."""
+        rows = self.rows(edge)
+        T = np.broadcast_to(np.eye(4), (len(rows), 4, 4)).copy()
+        T[:, :3, :3], T[:, :3, 3] = quat_to_rot(rows[:, 4:]), rows[:, 1:4]
+        return Trajectory(rows[:, 0].copy(), T)
 
     def frames(self) -> set[str]:
         """Every frame the transforms name."""
@@ -71,8 +88,8 @@ class TfTree:
 
     def moves(self, edge: Edge) -> bool:
         """Whether the edge changes over the recording (not on /tf_static and not the same every time)."""
-        poses = np.array([T for _, T in self.stamped[edge]])
-        return edge not in self.static and not np.allclose(poses, poses[0], rtol=0.0, atol=1e-9)
+        values = self.rows(edge)[:, 1:]
+        return edge not in self.static and not np.allclose(values, values[0], rtol=0.0, atol=1e-9)
 
     def route(self, start: str, goal: str) -> str:
         """The chain as words, for the user to check: ``world -> base_link -> camera (moving: world:base_link)``."""
@@ -86,8 +103,7 @@ class TfTree:
         and a stamp where one has none is left out; an edge that never changes counts at any time (its latest value).
         TfError when no edge is on /tf."""
         chain = self.chain(start, goal)
-        tracks = {e: Trajectory(np.array([t for t, _ in self.stamped[e]]), np.array([T for _, T in self.stamped[e]]))
-                  for e, _ in chain}
+        tracks = {e: self.track(e) for e, _ in chain}
         moving = [e for e, _ in chain if self.moves(e)] or [e for e, _ in chain if e not in self.static]
         if not moving:
             raise TfError(f"every transform from {start} to {goal} is on /tf_static: no motion to score against; give the "

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from nmnet_ros.datasets import between, quat_to_rot
+from nmnet_ros.posemsg import rot_to_quat
 from nmnet_ros.tftree import TfError, TfTree
 
 RNG = np.random.default_rng(7)
@@ -19,16 +20,21 @@ def pose() -> np.ndarray:
     return T
 
 
+def add(tree: TfTree, parent: str, child: str, stamp: float, T: np.ndarray, static: bool = False) -> None:
+    """A 4x4 transform into the tree, as a TF message carries it (translation, quaternion)."""
+    tree.add(parent, child, stamp, T[:3, 3], rot_to_quat(T[:3, :3]), static)
+
+
 def robot(stamps: np.ndarray) -> tuple[TfTree, list[np.ndarray], np.ndarray, np.ndarray]:
     """Motion capture's world -> base_link at ``stamps``; base_link -> camera_link on /tf_static; camera_link ->
     camera_optical republished on /tf every 0.25 s stamped 0.1 s ahead (ROS 1's static_transform_publisher)."""
     tree, body = TfTree(), [pose() for _ in stamps]
     mount, optical = pose(), pose()
     for t, T in zip(stamps, body, strict=True):
-        tree.add("/world", "/base_link", t, T)
-    tree.add("base_link", "camera_link", 0.0, mount, static=True)
+        add(tree, "/world", "/base_link", t, T)
+    add(tree, "base_link", "camera_link", 0.0, mount, static=True)
     for t in np.arange(stamps[0] - 1, stamps[-1] + 1, 0.25):
-        tree.add("camera_link", "camera_optical", t + 0.1, optical)
+        add(tree, "camera_link", "camera_optical", t + 0.1, optical)
     return tree, body, mount, optical
 
 
@@ -55,11 +61,11 @@ def test_two_moving_edges_at_their_own_rates_are_interpolated_to_the_sparser_one
     tree, slow, fast = TfTree(), {}, {}
     for t in np.round(np.arange(0, 1, 0.1), 6):
         slow[t] = pose()
-        tree.add("world", "odom", t, slow[t])
+        add(tree, "world", "odom", t, slow[t])
     for t in np.round(np.arange(0, 1, 0.02) + 0.003, 6):
         if not 0.45 < t < 0.55:  # a gap around 0.5
             fast[t] = pose()
-            tree.add("odom", "base_link", t, fast[t])
+            add(tree, "odom", "base_link", t, fast[t])
     truth = tree.trajectory("world", "base_link")
     assert 0.5 not in np.round(truth.stamps, 6) and len(truth.stamps) == 9
     assert np.allclose(truth.poses[0], slow[0.0] @ fast[0.003])  # before the first: the nearest, 3 ms away
@@ -70,15 +76,15 @@ def test_two_moving_edges_at_their_own_rates_are_interpolated_to_the_sparser_one
 
 def test_frames_no_chain_joins_are_named_with_the_edges_there_are():
     tree, *_ = robot(np.arange(3.0))
-    tree.add("map", "odom", 0.0, pose())
+    add(tree, "map", "odom", 0.0, pose())
     for a, b in (("world", "odom"), ("world", "world"), ("world", "nowhere")):
         with pytest.raises(TfError, match=f"no transforms lead from {a} to {b}; there are base_link:camera_link, "
                                           "camera_link:camera_optical, map:odom, world:base_link"):
             tree.trajectory(a, b)
     clocks = TfTree()  # two moving edges that never meet in time
-    clocks.add("world", "odom", 0.0, pose())
-    clocks.add("world", "odom", 1.0, pose())
-    clocks.add("odom", "base", 50.0, pose())
-    clocks.add("odom", "base", 51.0, pose())
+    add(clocks, "world", "odom", 0.0, pose())
+    add(clocks, "world", "odom", 1.0, pose())
+    add(clocks, "odom", "base", 50.0, pose())
+    add(clocks, "odom", "base", 51.0, pose())
     with pytest.raises(TfError, match="never published at the same time"):
         clocks.trajectory("world", "base")
