@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -470,13 +471,21 @@ def test_the_lens_model_travels_through_a_bag(tmp_path, fmt, model, dist, writte
     np.testing.assert_allclose(frames[0].camera.dist, written)
 
 
-def rewrite_bag(src: Path, dst: Path, edit) -> None:
-    """Copy a ROS 2 bag, passing every message through ``edit(topic, msg) -> msg`` (None: leave it out)."""
+@contextmanager
+def bag_copy(src: Path, dst: Path, leave_out: tuple[str, ...] = ()):
+    """A ROS 2 bag ``src`` read beside the MCAP bag ``dst`` written, with ``src``'s topics but ``leave_out`` added:
+    yields the rosbags reader, writer, the new connections by the old ones' ids, and the typestore."""
     from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
     ts = typestore()
     with Reader(src) as r, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
+        yield r, w, {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections
+                     if c.topic not in leave_out}, ts
+
+
+def rewrite_bag(src: Path, dst: Path, edit) -> None:
+    """Copy a ROS 2 bag, passing every message through ``edit(topic, msg) -> msg`` (None: leave it out)."""
+    with bag_copy(src, dst) as (r, w, conns, ts):
         for c, t, raw in r.messages():
             msg = edit(c.topic, ts.deserialize_cdr(raw, c.msgtype))
             if msg is not None:
@@ -684,18 +693,14 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
     later, is 30 mm off at KITTI's speed), and the scores are close to the exact-stamp bag's, offline and as --live
     scores them (median errors 0.022 / 0.300 deg against 0.033 / 0.305: across a frame the path between the KITTI
     poses bends, which interpolation cannot know). Ground truth on another clock is named."""
-    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-
     from nmnet_ros.datasets import Sequence, between, read_tum
     from nmnet_ros.live import score_recording
     from nmnet_ros.posemsg import rot_to_quat
 
-    ts = typestore()
-    Time = ts.types["builtin_interfaces/msg/Time"]
     seq = Sequence.load(data_dir("kitti-07"))  # the raw bag's frames 60-65, and the pose after them
     mocap = tmp_path / "mocap"
-    with Reader(raw_bag) as r, Writer(mocap, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
+    with bag_copy(raw_bag, mocap) as (r, w, conns, ts):
+        Time = ts.types["builtin_interfaces/msg/Time"]
         for c, t, raw in r.messages():
             if c.topic != "/ground_truth/pose":
                 w.write(conns[c.id], t, raw)
@@ -741,8 +746,6 @@ def robot_tf_bag(src: Path, dst: Path, cam_in_body: np.ndarray) -> None:
     /tf, base_link -> camera_link on /tf_static, camera_link -> camera_optical republished on /tf at every frame and
     stamped 0.1 s ahead (ROS 1's static_transform_publisher); ``cam_in_body`` is camera_optical in base_link, the
     frame the images name."""
-    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-
     from nmnet_ros.posemsg import rot_to_quat
 
     ts = typestore()
@@ -759,8 +762,7 @@ def robot_tf_bag(src: Path, dst: Path, cam_in_body: np.ndarray) -> None:
                                                        rotation=T["geometry_msgs/msg/Quaternion"](*q)))
 
     tf_type = "tf2_msgs/msg/TFMessage"
-    with Reader(src) as r, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
+    with bag_copy(src, dst) as (r, w, conns, _):
         static = w.add_connection("/tf_static", tf_type, typestore=ts)
         for c, t, raw in r.messages():
             if c.msgtype == "sensor_msgs/msg/Image":
@@ -988,8 +990,6 @@ def test_ground_truth_of_a_tracked_body_scores_the_camera_with_its_place_on_the_
     wheel odometry on /odom and nav2's /goal_pose. The topic named as ground truth is taken, the others are named as
     not taken; --gt-camera (the camera's optical frame on the body) gives the scores of the camera's own poses, and
     without it the scores are those of the wrong frame."""
-    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-
     from nmnet_ros.posemsg import rot_to_quat
 
     ts = typestore()
@@ -1009,9 +1009,7 @@ def test_ground_truth_of_a_tracked_body_scores_the_camera_with_its_place_on_the_
                                               covariance=np.zeros(36)))
 
     robot = tmp_path / "robot"
-    with Reader(raw_bag) as r, Writer(robot, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections
-                 if c.topic != "/ground_truth/pose"}
+    with bag_copy(raw_bag, robot, leave_out=("/ground_truth/pose",)) as (r, w, conns, _):
         gt = w.add_connection("/ground_truth/odom", "nav_msgs/msg/Odometry", typestore=ts)
         wheels = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
         goal = w.add_connection("/goal_pose", "geometry_msgs/msg/PoseStamped", typestore=ts)
@@ -1046,11 +1044,7 @@ def test_ground_truth_of_a_tracked_body_scores_the_camera_with_its_place_on_the_
 
 def two_camera_bag(src: Path, dst: Path) -> None:
     """``src`` with a second image topic, /camera2/image_raw, whose frames carry an encoding nobody can decode."""
-    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-
-    ts = typestore()
-    with Reader(src) as r, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
+    with bag_copy(src, dst) as (r, w, conns, ts):
         second = w.add_connection("/camera2/image_raw", "sensor_msgs/msg/Image", typestore=ts)
         for c, t, raw in r.messages():
             w.write(conns[c.id], t, raw)
