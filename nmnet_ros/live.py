@@ -221,13 +221,15 @@ def score_recording(path: Path, truth: Trajectory | None) -> dict:
     if truth is None:  # nothing to score against: the recording is not read
         return error_summary([])
     rec = BagReader(path)
-    poses = [(m.log_time_ns, m.msg) for m in rec.messages({f"/{NODE_NAME}/relative_pose"})]
-    if note := truth_missed(truth, [t / 1e9 for t, _ in poses]):
+    recorded = list(rec.messages({f"/{NODE_NAME}/relative_pose"}))
+    msgs, stamps = [m.msg for m in recorded], [m.log_time_ns / 1e9 for m in recorded]
+    if note := truth_missed(truth, stamps):
         print(f"warning: {note}", file=sys.stderr)
+    gt = [None if np.isnan(T[0, 0]) else T for T in truth.poses_at(np.asarray(stamps))]  # each looked up once
     errs = []
-    for (t_prev, _), (t_cur, msg) in zip(poses, poses[1:], strict=False):
+    for msg, T_prev, T_cur in zip(msgs[1:], gt, gt[1:], strict=False):
         o, p = msg.pose.pose.orientation, msg.pose.pose.position
         status, pose = estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance)
-        if (err := frame_error(status, pose, truth.at(t_prev / 1e9), truth.at(t_cur / 1e9))) is not None:
+        if (err := frame_error(status, pose, T_prev, T_cur)) is not None:
             errs.append(err)
     return error_summary(errs)
