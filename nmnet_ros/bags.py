@@ -462,6 +462,15 @@ def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic:
     return {"image": img_t, "camera_info": info_t}
 
 
+def window_side(window: tuple[float, float] | None, first_ns: int, t_ns: int) -> int:
+    """Where a message recorded at ``t_ns`` lies against ``window`` (seconds after the first frame, recorded at
+    ``first_ns``; ``--start``/``--duration``): -1 before it, 0 in it (or no window), 1 after it."""
+    if window is None:
+        return 0
+    after = (t_ns - first_ns) / 1e9
+    return -1 if after < window[0] else 1 if after > window[1] else 0
+
+
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
                 rectified: bool = False, recorded: bool = False,
                 window: tuple[float, float] | None = None) -> tuple[Iterator[Frame], dict[str, str | None]]:
@@ -488,10 +497,9 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
                     camera_error = str(e)  # the frames keep the last good calibration, if any, and say why not this one
                 continue
             first = m.log_time_ns if first is None else first
-            after = (m.log_time_ns - first) / 1e9  # seconds after the first frame
-            if window is not None and after > window[1]:
+            if (side := window_side(window, first, m.log_time_ns)) > 0:
                 break
-            if window is not None and after < window[0]:
+            if side < 0:
                 continue
             try:
                 img, err = decode_image_msg(m.msg, m.msgtype), None

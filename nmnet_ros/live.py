@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .bags import BagError, BagReader, choose_topics, typestore
+from .bags import BagError, BagReader, choose_topics, typestore, window_side
 from .caminfo import info_fields
 from .datasets import Trajectory
 from .dds import LARGE_FRAMES_PROFILE
@@ -161,13 +161,12 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
         first_frame = None  # the bag's first frame's recording time, where --start/--duration count from
         for m in reader.messages({t for t in (img_t, info_t) if t}):
             first_frame = m.log_time_ns if first_frame is None and m.topic == img_t else first_frame
-            if window is not None:
-                if first_frame is None:  # a calibration before the first frame: the first was published above
-                    continue
-                if (m.log_time_ns - first_frame) / 1e9 > window[1]:
-                    break
-                if (m.log_time_ns - first_frame) / 1e9 < window[0]:
-                    continue
+            if window is not None and first_frame is None:  # a calibration before the first frame: published above
+                continue
+            if (side := window_side(window, first_frame, m.log_time_ns)) > 0:
+                break
+            if side < 0:
+                continue
             first_ns = m.log_time_ns if first_ns is None else first_ns
             due = t_start + (m.log_time_ns - first_ns) / 1e9 / rate
             while (wait := due - time.monotonic()) > 0:
