@@ -139,6 +139,7 @@ class NMNetNode(Node):
         self._subscribe_image(reliable=p["qos"] == "reliable")
         self._silent_s = 0  # seconds with image publishers but no frame
         self._unpublished_s = 0  # seconds without any publisher on the image topic
+        self._clockless_s = 0  # seconds under use_sim_time without a publisher on /clock
         self._received_before = 0
         self._large_hint = False
         # a topic named like image_proc's rectified output: say once if its camera_info is the distorted raw one
@@ -250,7 +251,20 @@ class NMNetNode(Node):
             self._warn_lasting("no_frames", self._silent_s - 5, 30, lambda: (
                 f"{len(offers)} publisher(s) on {topic} but no frame for {self._silent_s} s: "
                 + silence_advice(self.image_reliable, offers)))
+        self._check_clock()
         self._publish_diagnostics()
+
+    def _check_clock(self) -> None:
+        """Under use_sim_time the node's clock is /clock's: say when nothing publishes it (a bag played without
+        --clock), as the clock then stands at 0 and so do /diagnostics' stamps and stamp_source arrival's."""
+        sim = self.get_parameter("use_sim_time").value
+        self._clockless_s = self._clockless_s + 1 if sim and self.count_publishers("/clock") == 0 else 0
+        if self._clockless_s >= 5:
+            self._warn_lasting("no_clock", self._clockless_s - 5, 60, lambda: (
+                f"use_sim_time is true but nothing has published /clock for {self._clockless_s} s: the node's clock "
+                f"stands at {self.get_clock().now().nanoseconds * 1e-9:.3f} s, which /diagnostics' stamps"
+                + (" and every frame's (stamp_source arrival) carry" if self.params["stamp_source"] == "arrival" else " carry")
+                + "; play the bag with `ros2 bag play --clock` or start the simulator's clock, else use_sim_time:=false"))
 
     def _warn(self, key: str, text: str, period: float = 5.0) -> None:
         """Warning counted per kind in diagnostics; the same message (numbers aside) at most once per period."""

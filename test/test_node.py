@@ -399,13 +399,16 @@ def test_a_node_nobody_publishes_to_names_the_image_topics_there_are(ros, tmp_pa
     """The usual set-up slip, no remap: after 10 s without a publisher the node lists the image topics and the remap.
 
     Also with use_sim_time and nothing on /clock (a bag played without --clock): the checks and /diagnostics run on
-    the steady clock, so the advice still comes."""
+    the steady clock, so the advice still comes, and the missing /clock is named too."""
+    sim = "use_sim_time:=true" in node_args
     with node_and_peer(ros, tmp_path, node_args, image_topic="/cam/image_raw", info_topic="/cam/camera_info") as (node, peer):
         assert spin_until(peer.node, lambda: peer.count("warn_no_publisher") > 0, 40.0), "no warning without a publisher"
         assert node.alive()
+        assert (peer.count("warn_no_clock") > 0) == sim, peer.diag_values()
     out = node.output()
     assert "no publisher on /image for 10 s: image topics seen: /cam/image_raw [Image]; remap with -r image:=/cam/image_raw" \
         in out, out
+    assert ("use_sim_time is true but nothing has published /clock for 5 s: the node's clock stands at 0.000 s" in out) == sim, out
 
 
 def test_rectified_frames_take_p_and_a_rect_topic_with_distortion_is_pointed_out(ros, tmp_path):
