@@ -340,7 +340,13 @@ def pick_topic(topics: dict[str, str], types: tuple[str, ...], what: str, wanted
         return found[0]
     if not found:
         return None
-    raise BagError(f"several {what} topics ({', '.join(sorted(found))}); choose one with --{what}-topic. Bag topics: {listing}")
+    raise several(found, what, topics)
+
+
+def several(found: list[str], what: str, topics: dict[str, str]) -> BagError:
+    """The error for more than one candidate topic: names them, the option that chooses, and every topic in the bag."""
+    return BagError(f"several {what} topics ({', '.join(sorted(found))}); choose one with --{what}-topic. "
+                    f"Bag topics: {_listing(topics)}")
 
 
 TRANSPORTS = ("compressed", "compressedDepth", "theora", "zstd", "ffmpeg", "h264")  # image_transport's sub-topics
@@ -403,7 +409,7 @@ def pick_ground_truth(topics: dict[str, str], wanted: str | None) -> tuple[str |
     poses = sorted(t for t, m in topics.items() if m in GT_TYPES)
     named = [t for t in poses if looks_like_ground_truth(t)]
     if len(named) > 1:
-        raise BagError(f"several gt topics ({', '.join(named)}); choose one with --gt-topic. Bag topics: {_listing(topics)}")
+        raise several(named, "gt", topics)
     chosen = named[0] if named else None
     others = [f"{t} [{topics[t]}]" for t in poses if t != chosen]
     return chosen, (f"not taken as ground truth: {', '.join(others)} (the name does not say so); name one with --gt-topic "

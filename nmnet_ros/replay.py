@@ -435,7 +435,7 @@ def ground_truth(reader: BagReader, args: argparse.Namespace, image_topic: str) 
 
 
 def main(args: argparse.Namespace) -> int:
-    """Entry point of ``nmnet replay`` (offline)."""
+    """Entry point of ``nmnet replay``: offline through the front end here, or ``--live`` through the node."""
     reader = BagReader(args.bag)  # a missing or unreadable bag stops here
     params = node_params(args)  # a bad parameters file stops here, naming it
     plots_dir = args.plots or args.out.parent
@@ -445,17 +445,17 @@ def main(args: argparse.Namespace) -> int:
 
         require_ros()  # no ROS here: stop, naming the package, before the output file is made
         chosen = live_topics(reader, **topics)  # likewise a ROS 1 bag, a topic it lacks
-        camera = read_camera_yaml(args.camera, chosen["image"]) if args.camera else None  # a bad file: named
         if args.selector is not None and args.selector not in NODE_ESTIMATORS:
             raise ValueError(f"--selector {args.selector}: the node runs {', '.join(NODE_ESTIMATORS)} (its pose_estimator); "
                              "replay without --live for the others")
-        if params["weights"]:
-            load_model(params["weights"])  # the node would stop on it; stop before the output file is made
-        truth = ground_truth(reader, args, chosen["image"])  # a bad --gt file, --gt-topic or --gt-tf stops here too
-        return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params, truth, chosen)
-    chosen = choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
+    else:
+        chosen = choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
     camera = read_camera_yaml(args.camera, chosen["image"]) if args.camera else None  # a bad file stops here, naming it
     truth = ground_truth(reader, args, chosen["image"])  # likewise a bad --gt file, --gt-topic or --gt-tf
+    if args.live:
+        if params["weights"]:
+            load_model(params["weights"])  # the node would stop on it; stop before the output file is made
+        return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params, truth, chosen)
     cfg = frontend_config(params)
     if args.selector is not None:
         cfg["selector"] = args.selector
