@@ -520,6 +520,28 @@ def live_node_args(args: argparse.Namespace) -> list[str]:
     return out
 
 
+def live_summary(stats: dict, wall: float, scores: dict, params: dict) -> dict:
+    """A live replay's summary from the player's ``stats`` (:func:`~.live.play_live`), printed: frames published,
+    processed, dropped and why (the node's last /diagnostics; ``None`` where no report came), latency, the scores."""
+    lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
+    processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result
+    diag = stats["diagnostics"]  # the node's last /diagnostics: why frames were dropped
+    warnings = {k.removeprefix("warn_"): int(v) for k, v in diag.items() if k.startswith("warn_")}
+    summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,
+               "received": int(diag["frames_received"]) if diag else None,  # None: no report came from the node
+               "dropped_busy": int(diag["frames_dropped"]) if diag else None,
+               "fps": processed / wall, "latency_p50_ms": float(np.percentile(lat, 50)),
+               "latency_p90_ms": float(np.percentile(lat, 90)), **scores, "warnings": warnings, "parameters": params}
+    why = (f" ({summary['dropped_busy']} replaced by a newer frame while the node was busy, "
+           f"{summary['frames'] - summary['received']} not received)" if diag and summary["dropped"] else "")
+    print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped{why}, "
+          f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
+    if warnings:  # frames the node skipped for bad input are among the dropped ones too
+        print("   the node's warnings (its /diagnostics): " + ", ".join(f"{k} {v}" for k, v in sorted(warnings.items())))
+    print_scores(summary)
+    return summary
+
+
 def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, camera: Camera | None, params: dict,
               truth: Trajectory | None = None, topics: dict[str, str | None] | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
@@ -540,24 +562,7 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
         signal.signal(signal.SIGTERM, old)
         for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
             print(f"warning: {w}")
-    wall = time.perf_counter() - t0
-    lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
-    processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result
-    scores = score_recording(args.out, truth)
-    diag = stats["diagnostics"]  # the node's last /diagnostics: why frames were dropped
-    warnings = {k.removeprefix("warn_"): int(v) for k, v in diag.items() if k.startswith("warn_")}
-    summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,
-               "received": int(diag["frames_received"]) if diag else None,  # None: no report came from the node
-               "dropped_busy": int(diag["frames_dropped"]) if diag else None,
-               "fps": processed / wall, "latency_p50_ms": float(np.percentile(lat, 50)),
-               "latency_p90_ms": float(np.percentile(lat, 90)), **scores, "warnings": warnings, "parameters": params}
-    why = (f" ({summary['dropped_busy']} replaced by a newer frame while the node was busy, "
-           f"{summary['frames'] - summary['received']} not received)" if diag and summary["dropped"] else "")
-    print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped{why}, "
-          f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
-    if warnings:  # frames the node skipped for bad input are among the dropped ones too
-        print("   the node's warnings (its /diagnostics): " + ", ".join(f"{k} {v}" for k, v in sorted(warnings.items())))
-    print_scores(summary)
+    summary = live_summary(stats, time.perf_counter() - t0, score_recording(args.out, truth), params)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
         args.json.write_text(summary_json(summary))

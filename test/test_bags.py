@@ -446,6 +446,26 @@ def test_a_summary_without_scored_pairs_is_strict_json():
                                                        "frames": 6}
 
 
+
+def test_a_live_summary_says_why_frames_dropped_and_what_it_cannot_know_without_the_nodes_report(capsys):
+    """The live replay's summary takes the reasons for dropped frames from the node's last /diagnostics; a node that
+    never reported (it ended before its first 1 Hz report) leaves them unknown (null in JSON), not 0 or a crash."""
+    from nmnet_ros.replay import error_summary, live_summary, summary_json
+
+    stats = {"published": 10, "results": 6, "latency_ms": [40.0, 60.0], "diagnostics": {}}
+    s = live_summary(stats, 2.0, error_summary([]), {"k": 8})
+    out = capsys.readouterr().out
+    assert (s["processed"], s["dropped"], s["received"], s["dropped_busy"]) == (7, 3, None, None), s
+    assert "live: 7/10 frames processed, 3 dropped, latency p50 50 ms" in out and "replaced" not in out, out
+    assert json.loads(summary_json(s))["received"] is None
+    stats["diagnostics"] = {"frames_received": "9", "frames_dropped": "2", "warn_bad_image": "1", "rate_hz": "3.5"}
+    s = live_summary(stats, 2.0, error_summary([]), {"k": 8})
+    out = capsys.readouterr().out
+    assert (s["received"], s["dropped_busy"], s["warnings"]) == (9, 2, {"bad_image": 1}), s
+    assert "3 dropped (2 replaced by a newer frame while the node was busy, 1 not received)" in out, out
+    assert "the node's warnings (its /diagnostics): bad_image 1" in out, out
+
+
 @pytest.mark.parametrize("model, dist, written", [
     ("equidistant", [0.05, -0.01, 0.003, -0.0005], [0.05, -0.01, 0.003, -0.0005]),  # fisheye: k1..k4 as given
     ("plumb_bob", [-0.28, 0.07, 0.0002, 0.00002], [-0.28, 0.07, 0.0002, 0.00002, 0.0]),  # k3 = 0, not a repeat of k1
