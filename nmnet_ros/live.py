@@ -26,11 +26,9 @@ from .datasets import Trajectory
 from .dds import LARGE_FRAMES_PROFILE
 from .geometry import Camera
 from .mcap_out import McapOutput
+from .params import NODE_NAME
 from .posemsg import estimate_of_message
 from .replay import error_summary, frame_error, truth_missed
-
-NODE_NAME = "nmnet_node"
-
 
 # the ROS packages the live mode runs on: the player's (this module) and the node's (node.py, its own process);
 # test_core_no_ros checks that both modules import no other

@@ -48,7 +48,7 @@ from .debug_view import draw_matches
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
 from .model_fast import precision_note
-from .params import PARAMS, STARTUP_ONLY, check_choices, frontend_config, pose_sigmas
+from .params import NODE_NAME, PARAMS, STARTUP_ONLY, check_choices, frontend_config, pose_sigmas
 from .pipeline import FrameResult, Frontend, Prepared, stamp_order, stamp_warning
 from .posemsg import relative_pose_of_current
 
@@ -100,7 +100,7 @@ class NMNetNode(Node):
     """rclpy shell around :class:`~nmnet_ros.pipeline.Frontend`."""
 
     def __init__(self) -> None:
-        super().__init__("nmnet_node")
+        super().__init__(NODE_NAME)
         for name, (default, desc, rng) in PARAMS.items():
             d = ParameterDescriptor(description=desc)
             if isinstance(rng, tuple) and isinstance(rng[0], float):
@@ -454,7 +454,9 @@ class NMNetNode(Node):
             **{f"stage_{k}_ms": round(float(np.median(v)), 1) for k, v in s.stage_ms.items()},
             **{f"warn_{k}": v for k, v in s.warnings.items()},
         }
-        st = DiagnosticStatus(name="nmnet_node: front end", hardware_id=self.get_fully_qualified_name())
+        # named as diagnostic_updater names a task, with the namespace: a robot's cameras' front ends stay apart
+        me = self.get_fully_qualified_name()
+        st = DiagnosticStatus(name=f"{me.lstrip('/')}: front end", hardware_id=me)
         st.level = DiagnosticStatus.OK if not s.warnings else DiagnosticStatus.WARN
         st.message = s.last_status if not s.warnings else "warnings: " + ", ".join(sorted(s.warnings))
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]

@@ -29,7 +29,7 @@ def launch_node_args(path: Path, args: dict[str, str]) -> list[str]:
     """The ``--ros-args`` that ``ros2 launch`` gives the one node of a launch XML file, with ``args``.
 
     launch / launch_ros have no wheels here, so this reads the few tags and substitutions the
-    shipped file uses (arg, node, param from/name, remap; $(var), $(find-pkg-share nmnet_ros)) and
+    shipped file uses (arg, node with name and namespace, param from/name, remap; $(var), $(find-pkg-share nmnet_ros)) and
     fails on anything else. find-pkg-share is the source tree: setup.py installs config/ and launch/
     under share/nmnet_ros.
     """
@@ -52,6 +52,8 @@ def launch_node_args(path: Path, args: dict[str, str]) -> list[str]:
             values[el.get("name")] = args.get(el.get("name"), sub(el.get("default", "")))
         elif el.tag == "node" and (el.get("pkg"), el.get("exec")) == ("nmnet_ros", "nmnet_node"):
             out += ["-r", f"__node:={el.get('name')}"]
+            if el.get("namespace") is not None:  # launch_ros makes it absolute: an empty one is the root
+                out += ["-r", f"__ns:=/{sub(el.get('namespace')).strip('/')}"]
             for p in el:
                 if p.tag == "param" and p.get("from"):
                     out += ["--params-file", sub(p.get("from"))]

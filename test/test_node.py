@@ -185,10 +185,12 @@ def kitti_info(seq: Sequence):
     return camera_info_msg(seq.camera.K, seq.camera.dist, seq.camera.width, seq.camera.height)
 
 
-# the raw run starts the node as the shipped launch file does (params file, remaps, node name)
+# the raw run starts the node as the shipped launch file does (params file, remaps, node name), in a namespace as
+# one of a robot's several cameras: its outputs and its diagnostics' name are the namespace's
 LAUNCH = ROOT / "launch" / "nmnet.launch.xml"
-RAW = (launch_node_args(LAUNCH, {"image": "/cam/image_raw", "camera_info": "/cam/camera_info"}),
-       {"image_topic": "/cam/image_raw", "info_topic": "/cam/camera_info"}, image_msg, range(40, 60), signal.SIGTERM)
+RAW = (launch_node_args(LAUNCH, {"image": "/cam/image_raw", "camera_info": "/cam/camera_info", "namespace": "front"}),
+       {"image_topic": "/cam/image_raw", "info_topic": "/cam/camera_info", "ns": "/front/nmnet_node"}, image_msg, range(40, 60),
+       signal.SIGTERM)
 # the compressed run also exercises the network-free pose_estimator
 COMPRESSED = (["-p", "use_compressed:=true", "-p", "pose_estimator:=classic"], {"compressed": True}, compressed_msg, range(100, 120),
               signal.SIGINT)
@@ -202,6 +204,8 @@ def test_twenty_kitti_frames(ros, tmp_path, node_args, peer_args, make_msg, fram
         peer.wait_connected()
         send_lockstep(peer, seq, list(frames), make_msg, kitti_info(seq))
         check_kitti_run(peer, seq, list(frames), network="pose_estimator:=classic" not in node_args)
+        ns = peer_args.get("ns", "/nmnet_node")
+        assert {(st.name, st.hardware_id) for st in peer.diag[-1].status} == {(f"{ns[1:]}: front end", ns)}
     assert "Traceback" not in node.output()
 
 
@@ -713,12 +717,13 @@ def test_params_file_and_readme_list_every_parameter_with_its_default():
 
 def test_launch_file_gives_the_tested_invocation():
     """What `ros2 launch nmnet_ros nmnet.launch.xml image:=... camera_info:=...` runs: the shipped params
-    file, the node's three input topics remapped, use_compressed passed through (the raw DDS test above
-    starts the node with exactly these arguments); an undeclared launch argument is an error."""
+    file, the node's three input topics remapped, use_compressed passed through, the namespace (the raw DDS test
+    above starts the node with these arguments, in a namespace); an undeclared launch argument is an error."""
     args = launch_node_args(LAUNCH, {"image": "/cam/image_raw", "camera_info": "/cam/camera_info", "use_compressed": "true"})
-    assert args == ["-r", "__node:=nmnet_node", "--params-file", str(ROOT / "config" / "nmnet.yaml"),
+    assert args == ["-r", "__node:=nmnet_node", "-r", "__ns:=/", "--params-file", str(ROOT / "config" / "nmnet.yaml"),
                     "-p", "use_compressed:=true", "-r", "image:=/cam/image_raw", "-r", "image/compressed:=/cam/image_raw/compressed",
                     "-r", "camera_info:=/cam/camera_info"]
+    assert launch_node_args(LAUNCH, {"namespace": "rear"})[:4] == ["-r", "__node:=nmnet_node", "-r", "__ns:=/rear"]
     with pytest.raises(ValueError, match="camera_topic"):
         launch_node_args(LAUNCH, {"camera_topic": "/cam/image_raw"})
 
