@@ -129,20 +129,25 @@ def _sections(doc: object, path: Path) -> list[dict]:
     """The ``ros__parameters`` mappings of a ROS 2 parameters file that apply to the node, in file order."""
     if not isinstance(doc, dict):
         raise ParamsFileError(f"{path}: not a ROS 2 parameters file (a mapping of node names to ros__parameters)")
-    found = []
+    found, nodes = [], set()
     for key, body in doc.items():
         name = str(key).strip("/").split("/")[-1]
         if name in ("**", NODE_NAME) and isinstance(body, dict) and isinstance(body.get("ros__parameters"), dict):
             found.append(body["ros__parameters"])
+            if name == NODE_NAME and "*" not in str(key):
+                nodes.add("/" + str(key).strip("/"))
     if not found:
         raise ParamsFileError(f"{path}: no ros__parameters for /** or {NODE_NAME} (found: {', '.join(map(str, doc)) or 'nothing'})")
+    if len(nodes) > 1:  # a robot's file for several cameras: which one's values a replay takes is not for us to guess
+        raise ParamsFileError(f"{path}: sections for several nodes ({', '.join(sorted(nodes))}); a replay is one camera's: "
+                              "give a file with that camera's section (and /** for what they share)")
     return found
 
 
 def read_params_file(path: Path, warn: Callable[[str], None] = print) -> dict:
     """Every node parameter's value from a ROS 2 parameters file (``config/nmnet.yaml``'s form), defaults for the rest.
 
-    Sections for ``/**`` and for the node (``nmnet_node``, any namespace) apply in file order. A value the
+    Sections for ``/**`` and for the node (``nmnet_node``, any namespace, only one) apply in file order. A value the
     node would refuse raises :class:`ParamsFileError` naming the file and the parameter; a name the node
     does not have is reported through ``warn`` and ignored, as the node ignores it.
     """

@@ -48,7 +48,10 @@ def test_sections_for_the_node_apply_in_file_order_and_others_are_ignored(tmp_pa
     ("/**:\n  ros__parameters:\n    rectified: 1\n", "rectified: 1 is an integer, the parameter a bool"),
     ("/**:\n  ros__parameters:\n    max_keypoints: 50\n", "max_keypoints: 50 is out of range 100 .. 8000"),
     ("/**:\n  ros__parameters:\n    pose_estimator: fancy\n", "pose_estimator: 'fancy' is not one of"),
-], ids=["missing", "yaml", "not-a-mapping", "no-section", "type", "int-for-float", "int-for-bool", "range", "choice"])
+    ("/front/nmnet_node:\n  ros__parameters:\n    k: 6\nrear/nmnet_node:\n  ros__parameters:\n    k: 4\n",
+     r"sections for several nodes \(/front/nmnet_node, /rear/nmnet_node\); a replay is one camera's"),
+], ids=["missing", "yaml", "not-a-mapping", "no-section", "type", "int-for-float", "int-for-bool", "range", "choice",
+        "two-cameras"])
 def test_a_bad_parameters_file_names_the_file_and_the_problem(tmp_path, text, match):
     f = tmp_path / "p.yaml"
     if text is not None:
