@@ -337,6 +337,35 @@ def refine_pose(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, sigma: flo
     return PoseEstimate(R=R, t=t.reshape(np.shape(pose.t)), E=E, inliers=pose.inliers)
 
 
+def fit_rotation(x0n: np.ndarray, x1n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation alone that best maps the matches' viewing rays (x1 ~ R x0, no translation) and each match's
+    angle (radians) off it: the parallax a translation leaves once the rotation is taken out.
+
+    For a camera that turns without measurably moving, where the essential matrix is undefined (it is [t]x R
+    with t = 0). Orthogonal Procrustes (Kabsch) on the unit rays, fitted again without the matches beyond three
+    times the median angle until that set settles, so that mismatches do not tilt it.
+    """
+    x0n, x1n = _checked_pair(x0n, x1n)
+    b0, b1 = (np.c_[x, np.ones(len(x))] for x in (x0n, x1n))
+    b0, b1 = b0 / np.linalg.norm(b0, axis=1, keepdims=True), b1 / np.linalg.norm(b1, axis=1, keepdims=True)
+
+    def kabsch(keep: np.ndarray) -> np.ndarray:
+        U, _, Vt = np.linalg.svd(b1[keep].T @ b0[keep])
+        return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+
+    def angles(R: np.ndarray) -> np.ndarray:
+        return np.arccos(np.clip(np.einsum("ij,ij->i", b1, b0 @ R.T), -1.0, 1.0))
+
+    keep = np.ones(len(b0), bool)
+    for _ in range(4):  # the kept set settles in one or two rounds
+        R = kabsch(keep)
+        a = angles(R)
+        keep, kept = a <= 3.0 * np.median(a) + 1e-12, keep
+        if np.array_equal(keep, kept):
+            break
+    return R, a
+
+
 def rotation_error_deg(R: np.ndarray, R_gt: np.ndarray) -> float:
     """Angle of R R_gt^T in degrees."""
     c = (np.trace(R @ R_gt.T) - 1.0) / 2.0

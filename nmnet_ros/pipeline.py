@@ -23,7 +23,7 @@ from .bf16 import PRECISIONS
 from .detectors import DEFAULT_DETECTOR, make_detector
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Detector, Features
-from .geometry import Camera, PoseEstimate, scale_pixels
+from .geometry import Camera, PoseEstimate, fit_rotation, scale_pixels
 from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
@@ -44,7 +44,7 @@ DEFAULT_CONFIG: dict = {
     "mutual": False,
     "match_gemm": "auto",  # descriptor similarities: auto (bfloat16 screen + float32 re-check where native), float32
     "min_matches": 8,
-    "static_flow_px": 1.0,  # median flow of the selected matches below this = camera not moving
+    "static_flow_px": 1.0,  # median flow below this (or parallax, the flow less the rotation, below a quarter): no baseline
     "time_jump_s": 1.0,  # a frame this much older than the previous one starts a new chain (bag loop, clock reset)
     "match_stage": "auto",  # where matching runs: auto (the stage split with the shorter slower stage), first, second
 }
@@ -286,9 +286,14 @@ class Frontend:
         base["mask"] = sel.mask
         if sel.mask.sum() < c["min_matches"]:
             return FrameResult(stamp, "too_few_matches", **base)
+        # No measurable baseline: the camera stood (flow below static_flow_px) or only turned (the rotation fitted
+        # alone leaves under a quarter of it: keypoint noise). The essential matrix is undefined then (MAGSAC++ fails,
+        # or returns a direction drawn from noise), and the rotation alone is the estimate. Only a quarter: a small
+        # sideways step before a distant scene also looks much like a turn, and the rotation would absorb it.
         flow = np.median(np.linalg.norm(k1[sel.mask] - k0[sel.mask], axis=1))  # in the pixels detected on
-        if flow < c["static_flow_px"]:
-            return FrameResult(stamp, "no_motion", **base)
+        R, angles = fit_rotation(corr.x0[sel.mask], corr.x1[sel.mask])
+        if flow < c["static_flow_px"] or np.median(angles) * cam.focal < c["static_flow_px"] / 4:
+            return FrameResult(stamp, "no_motion", pose=PoseEstimate(R, np.zeros(3), np.zeros((3, 3)), sel.mask), **base)
         if sel.pose is None:
             return FrameResult(stamp, "pose_failed", **base)
         return FrameResult(stamp, "ok", pose=sel.pose, **base)

@@ -49,8 +49,9 @@ def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches
     ``sigmas``: (rotation degrees, direction) per axis at REF_MATCHES selected matches, scaled by
     sqrt(REF_MATCHES / num_matches).
 
-    ``ok``: the estimate. ``no_motion`` (a static camera): the identity with zero translation and the
-    rotation covariance. Any other status: the identity with NO_ESTIMATE_VAR on every axis.
+    ``ok``: the estimate. ``no_motion`` (a camera that turned or stood without a measurable baseline): its
+    rotation (the identity when ``pose`` is None) with zero translation, the rotation covariance and a tiny
+    translation variance. Any other status: the identity with NO_ESTIMATE_VAR on every axis.
     """
     cov = np.zeros((6, 6))
     if status not in ("ok", "no_motion") or (status == "ok" and pose is None):
@@ -60,7 +61,7 @@ def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches
     if status == "no_motion":
         cov[:3, :3] = np.eye(3) * 1e-6
         cov[3:, 3:] = np.eye(3) * rot_var
-        return np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), cov
+        return (rot_to_quat(pose.R.T) if pose is not None else np.array([0.0, 0.0, 0.0, 1.0])), np.zeros(3), cov
     R_pc = pose.R.T
     t_pc = -pose.R.T @ pose.t
     t_pc = t_pc / max(np.linalg.norm(t_pc), 1e-12)
@@ -71,11 +72,11 @@ def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches
 
 def estimate_of_message(q_xyzw: np.ndarray, position: np.ndarray, covariance: np.ndarray) -> tuple[str, PoseEstimate | None]:
     """A relative_pose message read back in the front end's terms (the inverse of :func:`relative_pose_of_current`):
-    status ``ok`` with the pose (x_cur = R x_prev + t), ``no_motion`` or ``no_estimate`` (both without one)."""
+    status ``ok`` with the pose (x_cur = R x_prev + t), ``no_motion`` with the rotation and t = 0, or ``no_estimate``
+    without one."""
     if np.asarray(covariance).ravel()[0] >= NO_ESTIMATE_VAR:  # the message carries it row-major, 36 values
         return "no_estimate", None
     p = np.asarray(position, np.float64)
-    if not p.any():  # an estimate's translation is a unit direction
-        return "no_motion", None
     R_pc = quat_to_rot(q_xyzw)
-    return "ok", PoseEstimate(R_pc.T, -R_pc.T @ p, np.zeros((3, 3)), np.zeros(0, bool))
+    pose = PoseEstimate(R_pc.T, -R_pc.T @ p, np.zeros((3, 3)), np.zeros(0, bool))
+    return ("ok" if p.any() else "no_motion"), pose  # an estimate's translation is a unit direction

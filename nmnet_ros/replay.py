@@ -223,7 +223,7 @@ def chain_trajectory(run: Run) -> tuple[np.ndarray, np.ndarray]:
             T_est = T.copy()
         else:
             step = np.eye(4)
-            if r.pose is not None and r.status == "ok":
+            if r.pose is not None and r.status in ("ok", "no_motion"):  # no_motion: the rotation, t = 0
                 scale = np.linalg.norm((np.linalg.inv(T_gt_prev) @ T)[:3, 3])
                 step[:3, :3] = r.pose.R.T  # T_prev_cur = inv([R | t])
                 step[:3, 3] = -r.pose.R.T @ r.pose.t * scale

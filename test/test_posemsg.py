@@ -1,5 +1,6 @@
 """The relative-pose messages: one per frame after the first, "no estimate" where the front end has none."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -26,10 +27,15 @@ def test_an_estimate_reads_back_as_itself():
     assert relative_pose_of_current("ok", est, 100)[2][0, 0] == 4 * cov[0, 0]  # fewer matches, wider
 
 
-def test_a_static_camera_is_the_identity_with_a_small_covariance():
+def test_a_camera_without_a_baseline_is_its_rotation_with_zero_translation_and_a_small_covariance():
     q, p, cov = relative_pose_of_current("no_motion", None, 300)
     assert q.tolist() == [0, 0, 0, 1] and not p.any() and cov[0, 0] < 1e-5
-    assert estimate_of_message(q, p, cov.ravel()) == ("no_motion", None)
+    R = cv2.Rodrigues(np.array([0.001, -0.004, 0.002]))[0]  # turned by a quarter degree, not moved
+    q, p, cov = relative_pose_of_current("no_motion", PoseEstimate(R, np.zeros(3), np.zeros((3, 3)), np.ones(9, bool)), 300)
+    assert not p.any() and cov[0, 0] < 1e-5 and cov[3, 3] == relative_pose_of_current("no_motion", None, 300)[2][3, 3]
+    status, back = estimate_of_message(q, p, cov.ravel())
+    assert status == "no_motion" and not back.t.any()
+    np.testing.assert_allclose(back.R, R, atol=1e-12)
 
 
 @pytest.mark.parametrize("status", ["too_few_matches", "pose_failed", *RESTARTS])
