@@ -591,7 +591,8 @@ def test_parameters_change_while_running(ros, tmp_path):
         frame(48, 9.0)
         static = peer.pose_for(9.0)
         p, o = static.pose.pose.position, static.pose.pose.orientation
-        assert (p.x, p.y, p.z, o.x, o.y, o.z, o.w) == (0, 0, 0, 0, 0, 0, 1) and not no_estimate(static)
+        # no_motion: the rotation fitted alone (a fraction of a degree between these frames), zero translation
+        assert (p.x, p.y, p.z) == (0, 0, 0) and 0 < np.degrees(2 * np.arccos(min(o.w, 1.0))) < 1.0 and not no_estimate(static)
         assert all(r.successful for r in set_params(peer, {"static_flow_px": 1.0, "time_jump_s": 0.2}))
         frame(49, 8.5)
         assert no_estimate(peer.pose_for(8.5))
