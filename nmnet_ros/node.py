@@ -65,6 +65,20 @@ def lasting_warning_due(seconds: int, first: int, cap: int = 600) -> bool:
     return at == seconds
 
 
+RECENT_S = 10.0  # a warning counted this recently makes /diagnostics' level WARN
+NOT_FAULTS = ("no_motion",)  # counted, but a normal state: a robot that waits or turns in place
+
+
+def health(last_warned: dict[str, float], now: float, status: str) -> tuple[bytes, str]:
+    """/diagnostics' level and message: WARN naming the kinds counted in the last RECENT_S seconds, else OK with
+    the last frame's status. A fault that passed (a camera_info that came after the first frame, one corrupt
+    image) does not leave the node WARN for good; the counters (``warn_<kind>``) keep every one."""
+    recent = sorted(k for k, t in last_warned.items() if now - t < RECENT_S and k not in NOT_FAULTS)
+    if recent:
+        return DiagnosticStatus.WARN, f"warnings in the last {RECENT_S:.0f} s: " + ", ".join(recent)
+    return DiagnosticStatus.OK, status
+
+
 @dataclass
 class _Detected:
     """A decoded, detected frame on its way from stage 1 to stage 2."""
@@ -87,6 +101,7 @@ class Stats:
     estimated: int = 0  # relative poses with an estimate (ok, no_motion)
     resets: int = 0  # ~/reset calls
     warnings: dict[str, int] = field(default_factory=dict)
+    last_warned: dict[str, float] = field(default_factory=dict)  # monotonic time each kind was last counted
     latency_ms: deque = field(default_factory=lambda: deque(maxlen=100))
     stage_ms: dict[str, deque] = field(default_factory=dict)
     last_matches: int = 0
@@ -286,6 +301,7 @@ class NMNetNode(Node):
     def _count(self, key: str) -> None:
         """One more warning of this kind in diagnostics (``warn_<key>``)."""
         self.stats.warnings[key] = self.stats.warnings.get(key, 0) + 1
+        self.stats.last_warned[key] = time.monotonic()
 
     def _on_info(self, msg: CameraInfo) -> None:
         try:
@@ -457,8 +473,7 @@ class NMNetNode(Node):
         # named as diagnostic_updater names a task, with the namespace: a robot's cameras' front ends stay apart
         me = self.get_fully_qualified_name()
         st = DiagnosticStatus(name=f"{me.lstrip('/')}: front end", hardware_id=me)
-        st.level = DiagnosticStatus.OK if not s.warnings else DiagnosticStatus.WARN
-        st.message = s.last_status if not s.warnings else "warnings: " + ", ".join(sorted(s.warnings))
+        st.level, st.message = health(s.last_warned, time.monotonic(), s.last_status)
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         arr = DiagnosticArray(status=[st])
         arr.header.stamp = self.get_clock().now().to_msg()

@@ -303,6 +303,8 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
         assert wait_diag(peer, "warn_duplicate_stamp", 2)
         peer.pub_img.publish(image_msg(img2, -2.0))  # not a ROS time (a bag restamped too far back)
         assert wait_diag(peer, "warn_negative_stamp", 1)
+        st = peer.diag[-1].status[0]  # the level follows what went wrong lately (the counters keep everything)
+        assert st.level == st.WARN and st.message.startswith("warnings in the last 10 s: ") and "negative_stamp" in st.message
         assert node.alive()
     out = node.output()
     assert "Traceback" not in out
@@ -318,6 +320,21 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
                    "frame stamp -2.000000 is negative: skipped (ROS time starts at 0"):
         assert needle in out, f"no clear warning containing {needle!r}:\n{out}"
 
+
+
+def test_the_diagnostics_level_is_warn_while_warnings_are_recent_and_ok_again_after():
+    """A transient fault (a camera_info that came after the first frame, one corrupt image) used to leave the node
+    WARN for good, so a robot monitor showed it faulty all day; the level now follows the last 10 s. no_motion (a
+    robot that waits or turns in place) is counted but is not a fault."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from nmnet_ros.node import health
+
+    assert health({}, 100.0, "ok") == (DiagnosticStatus.OK, "ok")
+    assert health({"bad_image": 91.0, "no_camera_info": 2.0}, 100.0, "ok") == (
+        DiagnosticStatus.WARN, "warnings in the last 10 s: bad_image")
+    assert health({"bad_image": 89.0, "no_camera_info": 2.0}, 100.0, "ok") == (DiagnosticStatus.OK, "ok")
+    assert health({"no_motion": 99.0}, 100.0, "no_motion") == (DiagnosticStatus.OK, "no_motion")
 
 def test_corrupt_jpeg_is_skipped(ros, tmp_path):
     seq = Sequence.load(data_dir("kitti-07"))
