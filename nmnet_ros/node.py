@@ -467,13 +467,13 @@ class NMNetNode(Node):
             "latency_p50_ms": round(float(np.percentile(lat, 50)), 1), "latency_p90_ms": round(float(np.percentile(lat, 90)), 1),
             "input_qos": "reliable" if self.image_reliable else "best_effort",
             "keypoints": s.last_keypoints, "matches": s.last_matches, "selected": s.last_selected, "last_status": s.last_status,
-            **{f"stage_{k}_ms": round(float(np.median(v)), 1) for k, v in s.stage_ms.items()},
-            **{f"warn_{k}": v for k, v in s.warnings.items()},
+            **{f"stage_{k}_ms": round(float(np.median(v)), 1) for k, v in dict(s.stage_ms).items()},
+            **{f"warn_{k}": v for k, v in dict(s.warnings).items()},  # a copy: the worker threads add kinds
         }
         # named as diagnostic_updater names a task, with the namespace: a robot's cameras' front ends stay apart
         me = self.get_fully_qualified_name()
         st = DiagnosticStatus(name=f"{me.lstrip('/')}: front end", hardware_id=me)
-        st.level, st.message = health(s.last_warned, time.monotonic(), s.last_status)
+        st.level, st.message = health(dict(s.last_warned), time.monotonic(), s.last_status)
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         arr = DiagnosticArray(status=[st])
         arr.header.stamp = self.get_clock().now().to_msg()
