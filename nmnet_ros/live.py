@@ -28,7 +28,7 @@ from .geometry import Camera
 from .mcap_out import McapOutput
 from .params import NODE_NAME
 from .posemsg import estimate_of_message
-from .replay import error_summary, frame_error, truth_missed
+from .replay import error_summary, frame_error, still_error, truth_missed
 
 # the ROS packages the live mode runs on: the player's (this module) and the node's (node.py, its own process);
 # test_core_no_ros checks that both modules import no other
@@ -223,10 +223,12 @@ def score_recording(path: Path, truth: Trajectory | None) -> dict:
     if note := truth_missed(truth, stamps):
         print(f"warning: {note}", file=sys.stderr)
     gt = [None if np.isnan(T[0, 0]) else T for T in truth.poses_at(np.asarray(stamps))]  # each looked up once
-    errs = []
+    errs, still = [], []
     for msg, T_prev, T_cur in zip(msgs[1:], gt, gt[1:], strict=False):
         o, p = msg.pose.pose.orientation, msg.pose.pose.position
         status, pose = estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance)
         if (err := frame_error(status, pose, T_prev, T_cur)) is not None:
             errs.append(err)
-    return error_summary(errs)
+        elif (e := still_error(status, pose, T_prev, T_cur)) is not None:
+            still.append(e)
+    return error_summary(errs, still)

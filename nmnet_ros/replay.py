@@ -24,7 +24,7 @@ from .caminfo import fit_camera
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
-from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose
+from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose, rotation_error_deg
 from .mcap_out import McapOutput
 from .model import load_model
 from .params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
@@ -59,14 +59,29 @@ def frame_error(status: str, pose: PoseEstimate | None, T_prev: np.ndarray | Non
     return pose_error_deg(pose, R, t)
 
 
-def error_summary(errors: list[tuple[float, float]]) -> dict:
+def still_error(status: str, pose: PoseEstimate | None, T_prev: np.ndarray | None, T_cur: np.ndarray | None
+                ) -> float | None:
+    """Rotation error (degrees) of one frame whose ground truth did not move (under STATIC_GT_M: standing, or turning
+    on the spot), which :func:`frame_error` leaves out as it has no direction; a frame without an estimate counts
+    as 180. None for a moving pair, a restart, or no ground truth."""
+    if T_prev is None or T_cur is None or status in RESTARTS:
+        return None
+    R, t = relative_pose(T_prev, T_cur)
+    if np.linalg.norm(t) > STATIC_GT_M:
+        return None
+    return rotation_error_deg(pose.R, R) if status in ("ok", "no_motion") and pose is not None else 180.0
+
+
+def error_summary(errors: list[tuple[float, float]], still: list[float] | None = None) -> dict:
     """Median rotation / translation errors, pose AUC@5/10/20 (percent) and the pair count of (rot, trans) errors
-    in degrees: what the offline replay and the live scoring report alike."""
+    in degrees, and the median rotation error of the ``still`` pairs (:func:`still_error`): what the offline replay
+    and the live scoring report alike."""
     e = np.array(errors) if errors else np.zeros((0, 2))
     aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
     return {"median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,
             "median_trans_deg": float(np.median(e[:, 1])) if len(e) else None,
-            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2], "scored_pairs": len(e)}
+            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2], "scored_pairs": len(e),
+            "still_pairs": len(still or []), "median_still_rot_deg": float(np.median(still)) if still else None}
 
 
 class Notes:
@@ -99,6 +114,7 @@ class Run:
         self.warnings: dict[str, int] = {}  # per kind, as :class:`Notes` counted them
         self.results: list[FrameResult] = []
         self.errors: list[tuple[float, float]] = []
+        self.still: list[float] = []  # rotation errors of the pairs whose ground truth did not move
         self.err_stamps: list[float] = []
         self.gt: list[np.ndarray | None] = []
         self.seconds = 0.0
@@ -112,7 +128,7 @@ class Run:
             statuses[r.status] = statuses.get(r.status, 0) + 1
         return {
             "frames": frames, "processed": len(self.results), "dropped": dropped,
-            "fps": len(self.results) / self.seconds if self.seconds else 0.0, **error_summary(self.errors),
+            "fps": len(self.results) / self.seconds if self.seconds else 0.0, **error_summary(self.errors, self.still),
             "matches_per_frame": float(np.mean(matches)) if matches else 0.0,
             "selected_per_frame": float(np.mean(sel)) if sel else 0.0, "status": statuses, "warnings": dict(self.warnings),
         }
@@ -179,6 +195,8 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             if err is not None:
                 run.errors.append(err)
                 run.err_stamps.append(f.stamp)
+            elif (still := still_error(r.status, r.pose, prev_gt, T)) is not None:
+                run.still.append(still)
             run.gt.append(T)
             prev_gt = T
             if len(run.results) == 1:  # the stream's first frame: nothing to relate it to (see posemsg)
@@ -301,6 +319,9 @@ def print_scores(s: dict) -> None:
     if s["median_rot_deg"] is not None:
         print(f"   vs ground truth ({s['scored_pairs']} pairs): median rotation error {s['median_rot_deg']:.3f} deg, translation "
               f"{s['median_trans_deg']:.2f} deg, AUC@5/10/20 {s['auc5']:.1f} / {s['auc10']:.1f} / {s['auc20']:.1f}")
+    if s.get("still_pairs"):
+        print(f"   without motion in the ground truth ({s['still_pairs']} pairs: standing, or turning on the spot): "
+              f"median rotation error {s['median_still_rot_deg']:.3f} deg")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

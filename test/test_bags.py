@@ -435,6 +435,24 @@ def test_live_replay_delivers_raw_frames_over_half_a_megabyte(tmp_path):
     assert read_output(tmp_path / "live.mcap")["/nmnet_node/matches"] == 5
 
 
+
+def test_a_standing_camera_is_scored_on_its_rotation(tmp_path):
+    """Pairs whose ground truth did not move (standing, or turning on the spot) have no direction to score, so the
+    pose AUC leaves them out; their rotation is scored on its own (EuRoC V1_01's first second: the MAV on the
+    ground), offline and as --live scores its recording, and the summary says so. Before, they were not scored."""
+    from nmnet_ros.live import score_recording
+
+    bag = tmp_path / "euroc"
+    assert make_bag(data_dir("euroc-v101-cam0"), bag, "mcap", frames=range(0, 21)) == 21
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--json", str(tmp_path / "o.json"), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    s = json.loads((tmp_path / "o.json").read_text())
+    assert s["scored_pairs"] == 0 and s["status"] == {"first_frame": 1, "no_motion": 20}, s
+    assert s["still_pairs"] == 20 and s["median_still_rot_deg"] < 0.02, s  # measured 0.007; the identity's 0.02
+    assert "without motion in the ground truth (20 pairs: standing, or turning on the spot): median rotation error" in r.stdout
+    live = score_recording(tmp_path / "o.mcap", bag_ground_truth(BagReader(bag), "/ground_truth/pose"))
+    assert live["still_pairs"] == 19 and live["median_still_rot_deg"] < 0.02, live  # the first message is not scored live
+
 def test_a_summary_without_scored_pairs_is_strict_json():
     from nmnet_ros.replay import summary_json
 
