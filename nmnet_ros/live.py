@@ -28,7 +28,7 @@ from .geometry import Camera
 from .mcap_out import McapOutput
 from .params import NODE_NAME
 from .posemsg import estimate_of_message
-from .replay import error_summary, frame_error, still_error, truth_missed
+from .replay import PairScores, truth_missed
 
 # the ROS packages the live mode runs on: the player's (this module) and the node's (node.py, its own process);
 # test_core_no_ros checks that both modules import no other
@@ -210,25 +210,22 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
 def score_recording(path: Path, truth: Trajectory | None) -> dict:
     """Pose errors of a recorded ``~/relative_pose`` stream against ``truth`` (the replay's
     :func:`~nmnet_ros.replay.ground_truth`), scored as the offline replay scores its results
-    (:func:`~nmnet_ros.replay.frame_error`; "no estimate" is a failure).
+    (:class:`~nmnet_ros.replay.PairScores`; "no estimate" is a failure).
 
     Each message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the
     first, relative to the node's first frame, which has no message, is not scored.
     """
+    scores = PairScores()
     if truth is None:  # nothing to score against: the recording is not read
-        return error_summary([])
+        return scores.summary()
     rec = BagReader(path)
     recorded = list(rec.messages({f"/{NODE_NAME}/relative_pose"}))
     msgs, stamps = [m.msg for m in recorded], [m.log_time_ns / 1e9 for m in recorded]
     if note := truth_missed(truth, stamps):
         print(f"warning: {note}", file=sys.stderr)
     gt = [None if np.isnan(T[0, 0]) else T for T in truth.poses_at(np.asarray(stamps))]  # each looked up once
-    errs, still = [], []
-    for msg, T_prev, T_cur in zip(msgs[1:], gt, gt[1:], strict=False):
+    for msg, stamp, T_prev, T_cur in zip(msgs[1:], stamps[1:], gt, gt[1:], strict=False):
         o, p = msg.pose.pose.orientation, msg.pose.pose.position
-        status, pose = estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance)
-        if (err := frame_error(status, pose, T_prev, T_cur)) is not None:
-            errs.append(err)
-        elif (e := still_error(status, pose, T_prev, T_cur)) is not None:
-            still.append(e)
-    return error_summary(errs, still)
+        scores.add(*estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance),
+                   T_prev, T_cur, stamp)
+    return scores.summary()

@@ -42,14 +42,23 @@ def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
     raise _Terminated()
 
 
+def _gt_step(status: str, T_prev: np.ndarray | None, T_cur: np.ndarray | None
+             ) -> tuple[np.ndarray, np.ndarray, bool] | None:
+    """The ground truth's (R, t) over a pair and whether it moved (over STATIC_GT_M); None when the pair cannot be
+    scored (a pose missing, a restart of the chain)."""
+    if T_prev is None or T_cur is None or status in RESTARTS:
+        return None
+    R, t = relative_pose(T_prev, T_cur)
+    return R, t, bool(np.linalg.norm(t) > STATIC_GT_M)
+
+
 def frame_error(status: str, pose: PoseEstimate | None, T_prev: np.ndarray | None, T_cur: np.ndarray | None
                 ) -> tuple[float, float] | None:
     """(rot, trans) error of one frame's result (a FrameResult's status and pose, or what a recorded
     relative_pose says: ``no_estimate`` too); failures count as 180; None when not scorable."""
-    if T_prev is None or T_cur is None or status in RESTARTS:
+    if (step := _gt_step(status, T_prev, T_cur)) is None:
         return None
-    R, t = relative_pose(T_prev, T_cur)
-    moving = np.linalg.norm(t) > STATIC_GT_M
+    R, t, moving = step
     if status == "no_motion":
         return None if not moving else (180.0, 180.0)
     if status != "ok" or pose is None:
@@ -59,22 +68,34 @@ def frame_error(status: str, pose: PoseEstimate | None, T_prev: np.ndarray | Non
     return pose_error_deg(pose, R, t)
 
 
-def still_error(status: str, pose: PoseEstimate | None, T_prev: np.ndarray | None, T_cur: np.ndarray | None
-                ) -> float | None:
-    """Rotation error (degrees) of one frame whose ground truth did not move (under STATIC_GT_M: standing, or turning
-    on the spot), which :func:`frame_error` leaves out as it has no direction; a frame without an estimate counts
-    as 180. None for a moving pair, a restart, or no ground truth."""
-    if T_prev is None or T_cur is None or status in RESTARTS:
-        return None
-    R, t = relative_pose(T_prev, T_cur)
-    if np.linalg.norm(t) > STATIC_GT_M:
-        return None
-    return rotation_error_deg(pose.R, R) if status in ("ok", "no_motion") and pose is not None else 180.0
+class PairScores:
+    """A pass's scores against ground truth, pair by pair, as the offline replay and the live scoring collect them:
+    the (rotation, translation) errors of :func:`frame_error` (failures included, at 180) with their frames'
+    stamps, and the rotation errors of the estimates over pairs whose ground truth did not move (standing, or
+    turning on the spot), which have no direction to score."""
+
+    def __init__(self) -> None:
+        self.errors: list[tuple[float, float]] = []
+        self.stamps: list[float] = []
+        self.still: list[float] = []
+
+    def add(self, status: str, pose: PoseEstimate | None, T_prev: np.ndarray | None, T_cur: np.ndarray | None,
+            stamp: float) -> None:
+        """Score the pair that ends at the frame stamped ``stamp``."""
+        if (err := frame_error(status, pose, T_prev, T_cur)) is not None:
+            self.errors.append(err)
+            self.stamps.append(stamp)
+        elif pose is not None and (step := _gt_step(status, T_prev, T_cur)) is not None and not step[2]:
+            self.still.append(rotation_error_deg(pose.R, step[0]))
+
+    def summary(self) -> dict:
+        """:func:`error_summary` of the pairs scored."""
+        return error_summary(self.errors, self.still)
 
 
 def error_summary(errors: list[tuple[float, float]], still: list[float] | None = None) -> dict:
     """Median rotation / translation errors, pose AUC@5/10/20 (percent) and the pair count of (rot, trans) errors
-    in degrees, and the median rotation error of the ``still`` pairs (:func:`still_error`): what the offline replay
+    in degrees, and the median rotation error of the ``still`` pairs (:class:`PairScores`): what the offline replay
     and the live scoring report alike."""
     e = np.array(errors) if errors else np.zeros((0, 2))
     aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
@@ -113,9 +134,7 @@ class Run:
         self.name = name
         self.warnings: dict[str, int] = {}  # per kind, as :class:`Notes` counted them
         self.results: list[FrameResult] = []
-        self.errors: list[tuple[float, float]] = []
-        self.still: list[float] = []  # rotation errors of the pairs whose ground truth did not move
-        self.err_stamps: list[float] = []
+        self.scores = PairScores()
         self.gt: list[np.ndarray | None] = []
         self.seconds = 0.0
 
@@ -128,7 +147,7 @@ class Run:
             statuses[r.status] = statuses.get(r.status, 0) + 1
         return {
             "frames": frames, "processed": len(self.results), "dropped": dropped,
-            "fps": len(self.results) / self.seconds if self.seconds else 0.0, **error_summary(self.errors, self.still),
+            "fps": len(self.results) / self.seconds if self.seconds else 0.0, **self.scores.summary(),
             "matches_per_frame": float(np.mean(matches)) if matches else 0.0,
             "selected_per_frame": float(np.mean(sel)) if sel else 0.0, "status": statuses, "warnings": dict(self.warnings),
         }
@@ -191,12 +210,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             T = None if truth is None else truth.at(f.stamp)
             r = fe.process(f.image, f.stamp)
             run.results.append(r)
-            err = frame_error(r.status, r.pose, prev_gt, T)
-            if err is not None:
-                run.errors.append(err)
-                run.err_stamps.append(f.stamp)
-            elif (still := still_error(r.status, r.pose, prev_gt, T)) is not None:
-                run.still.append(still)
+            run.scores.add(r.status, r.pose, prev_gt, T, f.stamp)
             run.gt.append(T)
             prev_gt = T
             if len(run.results) == 1:  # the stream's first frame: nothing to relate it to (see posemsg)
@@ -272,10 +286,10 @@ def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> l
     paths = []
     fig, ax = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
     for run in runs:
-        if run.errors:
-            e = np.array(run.errors)
-            ax[0].plot(run.err_stamps, e[:, 0], ".-", label=run.name)
-            ax[1].plot(run.err_stamps, e[:, 1], ".-", label=run.name)
+        if run.scores.errors:
+            e = np.array(run.scores.errors)
+            ax[0].plot(run.scores.stamps, e[:, 0], ".-", label=run.name)
+            ax[1].plot(run.scores.stamps, e[:, 1], ".-", label=run.name)
     ax[0].set_ylabel("rotation error (deg)")
     ax[1].set_ylabel("translation dir. error (deg)")
     ax[1].set_xlabel("time (s)")
