@@ -430,8 +430,8 @@ class NMNetNode(Node):
             self._warn("too_few_matches", f"only {r.num_selected} matches selected of {len(r.k0)} (need min_matches = "
                                              f"{self.frontend.config['min_matches']}): relative_pose says no estimate")
         elif r.status == "no_motion":
-            self._warn("no_motion", "no baseline (the camera stands or turns on the spot; static_flow_px): publishing its "
-                                    "rotation alone, with zero translation", period=30.0)
+            self._warn("no_motion", "no baseline (the camera stands or turns on the spot; static_flow_px, "
+                                    "static_parallax_px): publishing its rotation alone, with zero translation", period=30.0)
         elif r.status == "pose_failed":
             self._warn("pose_failed", "pose estimation failed on the selected matches")
         sel = r.mask

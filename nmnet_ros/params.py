@@ -40,9 +40,11 @@ PARAMS: dict[str, tuple] = {
     "pose_refine_iterations": (SELECTOR_DEFAULTS["refine_iterations"], "Levenberg-Marquardt steps polishing the pose "
                                "on the Cauchy-robust Sampson error after MAGSAC++ (0 = off)", (0, 50)),
     "min_matches": (8, "fewer selected matches than this give no pose estimate (identity, variance 1e6)", (8, 100000)),
-    "static_flow_px": (1.0, "median flow of the selected matches (px) below which the camera counts as standing, "
-                            "or a quarter of it for their parallax (the flow its rotation does not explain: turning on "
-                            "the spot): no_motion, the rotation alone with zero translation", (0.0, 1000.0)),
+    "static_flow_px": (1.0, "median flow of the selected matches (px) below which the camera counts as standing: "
+                            "no_motion, the rotation alone with zero translation", (0.0, 1000.0)),
+    "static_parallax_px": (0.25, "median parallax of the selected matches (px; the flow the rotation fitted alone does "
+                                 "not explain) below which the camera counts as turning on the spot: no_motion, the "
+                                 "rotation alone with zero translation", (0.0, 1000.0)),
     "time_jump_s": (1.0, "a frame stamped this many seconds before the previous one restarts the chain (bag loop, "
                          "clock reset)", (0.0, 86400.0)),
     "pose_sigma_rotation_deg": (ROT_SIGMA_DEG, "published rotation sigma per axis (degrees) at 200 selected matches, "
@@ -82,7 +84,7 @@ def frontend_config(p: dict) -> dict:
         "mutual": p["matching"] == "mutual", "ratio": 0.8 if p["matching"] == "ratio" else None, "k": p["k"],
         "threshold_px": p["pose_threshold_px"], "refine_iterations": p["pose_refine_iterations"],
         "precision": p["nmnet_precision"], "min_matches": p["min_matches"], "static_flow_px": p["static_flow_px"],
-        "time_jump_s": p["time_jump_s"],
+        "static_parallax_px": p["static_parallax_px"], "time_jump_s": p["time_jump_s"],
     }
 
 

@@ -44,7 +44,8 @@ DEFAULT_CONFIG: dict = {
     "mutual": False,
     "match_gemm": "auto",  # descriptor similarities: auto (bfloat16 screen + float32 re-check where native), float32
     "min_matches": 8,
-    "static_flow_px": 1.0,  # median flow below this (or parallax, the flow less the rotation, below a quarter): no baseline
+    "static_flow_px": 1.0,  # median flow of the selected matches below this (pixels): the camera stands, no baseline
+    "static_parallax_px": 0.25,  # median flow the rotation fitted alone leaves below this: turning on the spot, no baseline
     "time_jump_s": 1.0,  # a frame this much older than the previous one starts a new chain (bag loop, clock reset)
     "match_stage": "auto",  # where matching runs: auto (the stage split with the shorter slower stage), first, second
 }
@@ -287,12 +288,13 @@ class Frontend:
         if sel.mask.sum() < c["min_matches"]:
             return FrameResult(stamp, "too_few_matches", **base)
         # No measurable baseline: the camera stood (flow below static_flow_px) or only turned (the rotation fitted
-        # alone leaves under a quarter of it: keypoint noise). The essential matrix is undefined then (MAGSAC++ fails,
-        # or returns a direction drawn from noise), and the rotation alone is the estimate. Only a quarter: a small
-        # sideways step before a distant scene also looks much like a turn, and the rotation would absorb it.
+        # alone leaves less than static_parallax_px: keypoint noise). The essential matrix is undefined then (MAGSAC++
+        # fails, or returns a direction drawn from noise), and the rotation alone is the estimate. The parallax bound is
+        # low (0.25 px): a small sideways step before a distant scene also looks much like a turn, and the rotation
+        # would absorb it.
         flow = np.median(np.linalg.norm(k1[sel.mask] - k0[sel.mask], axis=1))  # in the pixels detected on
         R, angles = fit_rotation(corr.x0[sel.mask], corr.x1[sel.mask])
-        if flow < c["static_flow_px"] or np.median(angles) * cam.focal < c["static_flow_px"] / 4:
+        if flow < c["static_flow_px"] or np.median(angles) * cam.focal < c["static_parallax_px"]:
             return FrameResult(stamp, "no_motion", pose=PoseEstimate(R, np.zeros(3), np.zeros((3, 3)), sel.mask), **base)
         if sel.pose is None:
             return FrameResult(stamp, "pose_failed", **base)

@@ -171,6 +171,28 @@ def test_a_camera_that_turns_without_moving_gets_its_rotation(deg):
     assert r.status == "no_motion" and not r.pose.t.any() and rotation_error_deg(r.pose.R, R) < 0.01
 
 
+def test_the_parallax_bound_is_its_own_parameter():
+    """static_parallax_px decides turning on the spot on its own, whatever static_flow_px: at 0 a frame turned by a
+    pure 5-degree rotation goes to the essential matrix (its flow is far above static_flow_px); raised above a moving
+    KITTI pair's parallax (a step of ~1 m; kitti-07's least parallax is 1.66 px) that pair is taken for a turn."""
+    import cv2
+
+    from nmnet_ros.pipeline import Frontend
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    K, img = seq.camera.K, seq.image(30)
+    turned = cv2.warpPerspective(img, K @ cv2.Rodrigues(np.radians(5.0) * np.array([0.0, 1.0, 0.0]))[0] @ np.linalg.inv(K),
+                                 img.shape[::-1], flags=cv2.INTER_LINEAR)
+    statuses = {}
+    for bound, second in ((0.0, turned), (0.25, turned), (0.25, seq.image(31)), (1000.0, seq.image(31))):
+        fe = Frontend(seq.camera, {"max_keypoints": 1000, "static_parallax_px": bound})
+        fe.process(img, 0.0)
+        statuses[bound, second is turned] = fe.process(second, 0.1).status
+    print(statuses)
+    assert statuses[0.25, True] == "no_motion" and statuses[0.0, True] != "no_motion"
+    assert statuses[0.25, False] == "ok" and statuses[1000.0, False] == "no_motion"
+
+
 def test_a_camera_standing_still_gets_its_small_rotation_not_the_identity():
     """EuRoC V1_01's first seconds: the MAV stands on the ground (baseline under a millimetre) and its camera sways by
     hundredths of a degree. Every frame is without a baseline; the rotation fitted alone is nearer the ground truth

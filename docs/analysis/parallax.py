@@ -5,7 +5,7 @@ runs over each sequence folder frame by frame, as the node would; for every rela
 flow of the selected matches, the median parallax (the flow the rotation fitted alone does not explain:
 ``geometry.fit_rotation``), the ground-truth baseline, and the rotation error of that fit and of the identity.
 The summary per sequence: the least parallax and how many pairs came out ``no_motion``. A moving camera must
-stay above the bound (a quarter of ``static_flow_px``: 0.25 px); a standing or only turning one sits far below.
+stay above the bound (``static_parallax_px``: 0.25 px); a standing or only turning one sits far below.
 
     python docs/analysis/parallax.py ../shared/data/kitti-07 ../shared/data/euroc-v101-cam0
 """
