@@ -12,7 +12,7 @@ ROS_PACKAGES = frozenset({"rclpy", "rcl_interfaces", "builtin_interfaces", "sens
 
 # subcommand -> (module, help); each module has add_arguments(parser) and main(args) -> int
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("nmnet_ros.demo", "run the front end on the bundled sample and print matches and pose"),
+    "demo": ("nmnet_ros.demo", "the bundled sample bag live through the node, then offline beside SIFT; scores and plots"),
     "train": ("nmnet_ros.train", "train NM-Net on sequence folders"),
     "eval": ("nmnet_ros.evaluate", "compare correspondence selectors on sequence folders"),
     "neighbors": ("nmnet_ros.neighbor_study", "inlier ratio of compatibility vs spatial neighbours (paper Fig. 3)"),
