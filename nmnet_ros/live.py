@@ -78,7 +78,111 @@ def live_topics(reader: BagReader, image_topic: str | None = None, info_topic: s
     return choose_topics(reader, image_topic, info_topic)
 
 
-def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None, log: Callable[[str], None] = print,
+def _start_node(compressed: bool, node_args: list[str] | None) -> subprocess.Popen:
+    """``nmnet_node`` in its own process, on the player's domain, its inputs remapped to ``/live/...``."""
+    env = live_env()
+    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTDDS_BUILTIN_TRANSPORTS",
+                                           "FASTDDS_DEFAULT_PROFILES_FILE")})  # the player's own participant
+    in_topic = "image/compressed" if compressed else "image"
+    args = ["--ros-args", "-r", f"__node:={NODE_NAME}", "-p", f"use_compressed:={str(compressed).lower()}",
+            "-r", f"{in_topic}:=/live/{in_topic}", "-r", "camera_info:=/live/camera_info", *(node_args or [])]
+    return subprocess.Popen([sys.executable, "-m", "nmnet_ros.node", *args], env=env)
+
+
+class _Player:
+    """The rclpy side of a live replay: publishes the bag's frames and calibration, records the node's outputs to
+    ``out`` and counts them (``stats``: published, results, latency_ms, the node's last diagnostics)."""
+
+    def __init__(self, image_type: str, out: McapOutput) -> None:
+        import rclpy
+        from rclpy.qos import QoSProfile, qos_profile_sensor_data
+
+        self.rclpy, self.out = rclpy, out
+        self.stats: dict = {"published": 0, "results": 0, "latency_ms": [], "diagnostics": {}}
+        self.sent_at: dict[int, float] = {}  # image stamp -> when it was published
+        self.answered: set[int] = set()  # stamps the node published matches for
+        self.last_stamp: int | None = None  # the last frame published
+        self.node = rclpy.create_node("nmnet_player")
+        in_topic = "image/compressed" if image_type.endswith("CompressedImage") else "image"
+        self.pub_img = self.node.create_publisher(_rclpy_type(image_type), f"/live/{in_topic}", qos_profile_sensor_data)
+        self.pub_info = self.node.create_publisher(_rclpy_type("sensor_msgs/msg/CameraInfo"), "/live/camera_info",
+                                                   qos_profile_sensor_data)
+        for suffix, mtype in (("matches", "sensor_msgs/msg/PointCloud2"),
+                              ("relative_pose", "geometry_msgs/msg/PoseWithCovarianceStamped")):
+            topic = f"/{NODE_NAME}/{suffix}"
+            self.node.create_subscription(_rclpy_type(mtype), topic, self._recorder(topic, mtype), QoSProfile(depth=100))
+        self.node.create_subscription(_rclpy_type("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics",
+                                      self._on_diagnostics, QoSProfile(depth=10))
+
+    def _recorder(self, topic: str, msgtype: str) -> Callable[[Any], None]:
+        from rclpy.serialization import serialize_message
+
+        def record(msg) -> None:
+            t_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+            self.out.write_raw(topic, msgtype, serialize_message(msg), t_ns)
+            if topic.endswith("matches"):
+                self.stats["results"] += 1
+                self.answered.add(t_ns)
+                if t_ns in self.sent_at:
+                    self.stats["latency_ms"].append(1000 * (time.monotonic() - self.sent_at[t_ns]))
+        return record
+
+    def _on_diagnostics(self, msg) -> None:
+        """The node's counters, as of its latest report (1 Hz)."""
+        for st in msg.status:
+            if st.hardware_id == f"/{NODE_NAME}":
+                self.stats["diagnostics"] = {kv.key: kv.value for kv in st.values}
+
+    def spin_for(self, seconds: float, until: Callable[[], bool] = lambda: False, step: float = 0.05) -> None:
+        """Serve callbacks for up to ``seconds``, or until ``until()``."""
+        t_end = time.monotonic() + seconds
+        while not until() and (wait := t_end - time.monotonic()) > 0:
+            self.rclpy.spin_once(self.node, timeout_sec=min(wait, step))
+
+    def wait_for_node(self, node_proc: subprocess.Popen, timeout: float = 60.0) -> None:
+        """Until the node subscribes to the frames (RuntimeError if it exits or does not within ``timeout``), then 1 s
+        more: the first messages after discovery can be lost."""
+        t_end = time.monotonic() + timeout
+        while self.pub_img.get_subscription_count() == 0 and time.monotonic() < t_end:
+            if node_proc.poll() is not None:
+                raise RuntimeError(f"the node exited with code {node_proc.returncode} before subscribing")
+            self.rclpy.spin_once(self.node, timeout_sec=0.1)
+        if self.pub_img.get_subscription_count() == 0:
+            raise RuntimeError(f"the node did not subscribe within {timeout:.0f} s")
+        self.spin_for(1.0)
+
+    def publish(self, msg, is_image: bool, camera: Camera | None) -> None:
+        """One of the bag's messages; with ``camera``, its camera_info goes with every frame."""
+        if not is_image:
+            self.pub_info.publish(msg)
+            return
+        if camera:
+            self.pub_info.publish(camera_info_msg(camera, msg.header))
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        self.sent_at[stamp] = time.monotonic()
+        self.pub_img.publish(msg)
+        self.stats["published"] += 1
+        self.last_stamp = stamp
+
+    def finish(self) -> None:
+        """The camera is done: wait for the last frame's result (3 s at most, under the node's 5 s no_frames delay;
+        a frame the node dropped never answers), remove the publishers, then record until results stop (8 s quiet).
+
+        No publisher left, so the node does not take the drain for a stalled camera (no_frames). Not before the last
+        frame has arrived: a writer destroyed right after publishing a large frame can take the frame with it (the
+        last of 6 raw 1.2 MB frames went missing in 3 of 26 runs); its result shows it arrived."""
+        if self.last_stamp is not None:
+            self.spin_for(3.0, lambda: self.last_stamp in self.answered)
+        self.node.destroy_publisher(self.pub_img)
+        self.node.destroy_publisher(self.pub_info)
+        count, quiet = self.stats["results"], time.monotonic()
+        while time.monotonic() - quiet < 8.0:
+            self.rclpy.spin_once(self.node, timeout_sec=0.1)
+            if self.stats["results"] != count:
+                count, quiet = self.stats["results"], time.monotonic()
+
+
+def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None,
               camera: Camera | None = None, topics: dict[str, str | None] | None = None, recorded: bool = False,
               window: tuple[float, float] | None = None) -> dict:
     """Play, record, stop the node; returns counts and latencies.
@@ -89,73 +193,26 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
     recorded from ``window[0]`` to ``window[1]`` seconds after the first frame.
     """
     import rclpy
-    from rclpy.qos import QoSProfile, qos_profile_sensor_data
-    from rclpy.serialization import deserialize_message, serialize_message
+    from rclpy.serialization import deserialize_message
 
     topics = topics or live_topics(reader)
     img_t, info_t = topics["image"], None if camera else topics["camera_info"]
-    compressed = reader.topics[img_t].endswith("CompressedImage")
-    env = live_env()
-    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTDDS_BUILTIN_TRANSPORTS",
-                                           "FASTDDS_DEFAULT_PROFILES_FILE")})
-    args = ["--ros-args", "-r", f"__node:={NODE_NAME}", "-p", f"use_compressed:={str(compressed).lower()}"]
-    in_topic = "image/compressed" if compressed else "image"
-    args += ["-r", f"{in_topic}:=/live/{in_topic}", "-r", "camera_info:=/live/camera_info", *(node_args or [])]
-    node_proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.node", *args], env=env)
+    node_proc = _start_node(reader.topics[img_t].endswith("CompressedImage"), node_args)
     rclpy.init()
     ts = typestore()
-    stats: dict = {"published": 0, "results": 0, "latency_ms": [], "diagnostics": {}}
-    sent_at: dict[int, float] = {}
-    answered: set[int] = set()  # stamps the node published matches for
+
+    def ros_msg(m):  # a bag message as the rclpy message it was
+        return deserialize_message(bytes(ts.serialize_cdr(m.msg, m.msgtype)), _rclpy_type(m.msgtype))
+
     try:
-        player = rclpy.create_node("nmnet_player")
-        pub_img = player.create_publisher(_rclpy_type(reader.topics[img_t]), f"/live/{in_topic}", qos_profile_sensor_data)
-        pub_info = player.create_publisher(_rclpy_type("sensor_msgs/msg/CameraInfo"), "/live/camera_info", qos_profile_sensor_data)
-
-        def record(topic: str, msgtype: str):
-            def cb(msg) -> None:
-                t_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-                out.write_raw(topic, msgtype, serialize_message(msg), t_ns)
-                if topic.endswith("matches"):
-                    stats["results"] += 1
-                    answered.add(t_ns)
-                    if t_ns in sent_at:
-                        stats["latency_ms"].append(1000 * (time.monotonic() - sent_at[t_ns]))
-            return cb
-
-        for suffix, mtype in (("matches", "sensor_msgs/msg/PointCloud2"),
-                              ("relative_pose", "geometry_msgs/msg/PoseWithCovarianceStamped")):
-            player.create_subscription(_rclpy_type(mtype), f"/{NODE_NAME}/{suffix}", record(f"/{NODE_NAME}/{suffix}", mtype),
-                                       QoSProfile(depth=100))
-
-        def diagnostics(msg) -> None:  # the node's counters, as of its latest report (1 Hz)
-            for st in msg.status:
-                if st.hardware_id == f"/{NODE_NAME}":
-                    stats["diagnostics"] = {kv.key: kv.value for kv in st.values}
-
-        player.create_subscription(_rclpy_type("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", diagnostics,
-                                   QoSProfile(depth=10))
-        t_end = time.monotonic() + 60
-        while pub_img.get_subscription_count() == 0 and time.monotonic() < t_end:
-            if node_proc.poll() is not None:
-                raise RuntimeError(f"the node exited with code {node_proc.returncode} before subscribing")
-            rclpy.spin_once(player, timeout_sec=0.1)
-        if pub_img.get_subscription_count() == 0:
-            raise RuntimeError("the node did not subscribe within 60 s")
-        t0 = time.monotonic() + 1.0  # first messages after discovery can be lost
-        while time.monotonic() < t0:
-            rclpy.spin_once(player, timeout_sec=0.05)
+        player = _Player(reader.topics[img_t], out)
+        player.wait_for_node(node_proc)
         # calibration first, so the first frame is usable (bags often log it just after the image)
-        if camera:
-            pub_info.publish(camera_info_msg(camera))
-            rclpy.spin_once(player, timeout_sec=0.2)
-        elif info_t:
-            first_info = next(iter(reader.messages({info_t})), None)
-            if first_info is not None:
-                pub_info.publish(deserialize_message(bytes(ts.serialize_cdr(first_info.msg, first_info.msgtype)),
-                                                     _rclpy_type(first_info.msgtype)))
-                rclpy.spin_once(player, timeout_sec=0.2)
-        first_ns, t_start, last_ns = None, time.monotonic(), None  # last_ns: the stamp of the last image published
+        first_info = None if camera or not info_t else next(iter(reader.messages({info_t})), None)
+        if camera or first_info is not None:
+            player.pub_info.publish(camera_info_msg(camera) if camera else ros_msg(first_info))
+            player.spin_for(0.2)
+        first_ns, t_start = None, time.monotonic()
         first_frame = None  # the bag's first frame's recording time, where --start/--duration count from
         for m in reader.messages({t for t in (img_t, info_t) if t}):
             first_frame = m.log_time_ns if first_frame is None and m.topic == img_t else first_frame
@@ -166,36 +223,14 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
             if side < 0:
                 continue
             first_ns = m.log_time_ns if first_ns is None else first_ns
-            due = t_start + (m.log_time_ns - first_ns) / 1e9 / rate
-            while (wait := due - time.monotonic()) > 0:
-                rclpy.spin_once(player, timeout_sec=min(wait, 0.02))
-            msg = deserialize_message(bytes(ts.serialize_cdr(m.msg, m.msgtype)), _rclpy_type(m.msgtype))
+            player.spin_for(t_start + (m.log_time_ns - first_ns) / 1e9 / rate - time.monotonic(), step=0.02)
+            msg = ros_msg(m)
             if recorded:
                 msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(m.log_time_ns, 10**9)
-            if m.topic == img_t:
-                if camera:
-                    pub_info.publish(camera_info_msg(camera, msg.header))
-                last_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-                sent_at[last_ns] = time.monotonic()
-                pub_img.publish(msg)
-                stats["published"] += 1
-            else:
-                pub_info.publish(msg)
-        # the camera is done: no publisher left, so the node does not take the drain for a stalled camera (no_frames).
-        # Not before the last frame has arrived: a writer destroyed right after publishing a large frame can take the
-        # frame with it (the last of 6 raw 1.2 MB frames went missing in 3 of 26 runs); its result shows it arrived.
-        t_last = time.monotonic() + 3.0  # < the node's 5 s no_frames delay; a frame the node dropped never answers
-        while last_ns is not None and last_ns not in answered and time.monotonic() < t_last:
-            rclpy.spin_once(player, timeout_sec=0.05)
-        player.destroy_publisher(pub_img)
-        player.destroy_publisher(pub_info)
-        # drain: wait until results stop coming
-        last, quiet = stats["results"], time.monotonic()
-        while time.monotonic() - quiet < 8.0:
-            rclpy.spin_once(player, timeout_sec=0.1)
-            if stats["results"] != last:
-                last, quiet = stats["results"], time.monotonic()
-        player.destroy_node()
+            player.publish(msg, m.topic == img_t, camera)
+        player.finish()
+        player.node.destroy_node()
+        return player.stats
     finally:
         rclpy.try_shutdown()
         if node_proc.poll() is None:
@@ -204,7 +239,6 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
                 node_proc.wait(15)
             except subprocess.TimeoutExpired:
                 node_proc.kill()
-    return stats
 
 
 def score_recording(path: Path, truth: Trajectory | None) -> dict:
