@@ -344,19 +344,14 @@ def _init_model(path: Path, kind: str, ratio_input: bool) -> NMNet:
     return wide.eval()
 
 
-def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: dict | None = None,
-          resume: bool = False, cache_dir: Path | None = None, log: Callable[[str], None] = print) -> dict:
-    """Train; writes ``best.pt`` (by validation F), ``last.pt`` and ``history.json`` to out_dir."""
-    c = {**DEFAULT_CONFIG, **(config or {})}
+def _checked_neighbors(c: dict, train_specs: list[str]) -> str:
+    """The neighbour kind of ``c["variant"]``, after checking every training option (ValueError naming the bad one)."""
     if c["variant"] not in NEIGHBORS:
         raise ValueError(f"unknown variant {c['variant']!r}; use one of {sorted(NEIGHBORS)}")
-    kind = NEIGHBORS[c["variant"]]
     if not isinstance(c["workers"], int) or c["workers"] < 1:
         raise ValueError(f"--workers must be a whole number >= 1 (threads mining neighbours), got {c['workers']!r}")
     if str(c["device"]).startswith("cuda") and not torch.cuda.is_available():
         raise ValueError(f"--device {c['device']}: torch {torch.__version__} sees no CUDA GPU here; use --device cpu")
-    torch.manual_seed(c["seed"])
-    rng = np.random.default_rng(c["seed"])
     if not 0 < c["label_threshold"] < 1:
         raise ValueError(f"--label-threshold must be in (0, 1) (squared normalised distance), got {c['label_threshold']}")
     if not 0 <= c["thin_inliers"] <= 1:
@@ -373,6 +368,33 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
             if np.any(Sequence.load(path).camera.dist):
                 raise ValueError(f"--turn-deg: {path}/camera.yaml has lens distortion; turning is done with the pinhole "
                                  "model, so train on undistorted (rectified) images or without --turn-deg")
+    return NEIGHBORS[c["variant"]]
+
+
+def _step(model: NMNet, opt: torch.optim.Optimizer, pool: ThreadPoolExecutor, batch: list[tuple], c: dict,
+          device: torch.device) -> float:
+    """One optimiser step on a batch of (pair, *draw_sample(...)) samples; returns the loss."""
+    inputs = list(pool.map(lambda b: pair_input(b[0], model.config, b[1], b[2], b[3]), batch))
+    ys = [torch.from_numpy(b[4].astype(np.float32))[None] for b in batch]
+    x = torch.cat([x for x, _ in inputs]).to(device)
+    logits = model(x, torch.cat([nb for _, nb in inputs]).to(device))
+    loss = balanced_bce(logits, torch.cat(ys).to(device))
+    if c["ess_loss"] > 0:
+        E_gt = torch.from_numpy(np.stack([sample_essential(b[0], b[2], b[3]) for b in batch])).to(device)
+        loss = loss + c["ess_loss"] * essential_loss(logits, x, E_gt)
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+    return loss.item()
+
+
+def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: dict | None = None,
+          resume: bool = False, cache_dir: Path | None = None, log: Callable[[str], None] = print) -> dict:
+    """Train; writes ``best.pt`` (by validation F), ``last.pt`` and ``history.json`` to out_dir."""
+    c = {**DEFAULT_CONFIG, **(config or {})}
+    kind = _checked_neighbors(c, train_specs)
+    torch.manual_seed(c["seed"])
+    rng = np.random.default_rng(c["seed"])
     out_dir = Path(out_dir)
     resuming = resume and (out_dir / "last.pt").is_file()  # --init only seeds a run's first start
     if c["init"] is not None and not resuming:
@@ -424,18 +446,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
                      else rng.choice(len(train_pairs), size=c["batch"], p=weights))
             for pi in drawn:
                 batch.append((train_pairs[pi], *draw_sample(rng, train_pairs[pi], c)))
-            inputs = list(pool.map(lambda b: pair_input(b[0], model.config, b[1], b[2], b[3]), batch))
-            ys = [torch.from_numpy(b[4].astype(np.float32))[None] for b in batch]
-            x = torch.cat([x for x, _ in inputs]).to(device)
-            logits = model(x, torch.cat([nb for _, nb in inputs]).to(device))
-            loss = balanced_bce(logits, torch.cat(ys).to(device))
-            if c["ess_loss"] > 0:
-                E_gt = torch.from_numpy(np.stack([sample_essential(b[0], b[2], b[3]) for b in batch])).to(device)
-                loss = loss + c["ess_loss"] * essential_loss(logits, x, E_gt)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            losses.append(loss.item())
+            losses.append(_step(model, opt, pool, batch, c, device))
         val = validate(model, val_pairs)
         val.pop("f1_by_threshold")
         rec = {"epoch": epoch, "loss": float(np.mean(losses)), **{f"val_{k}": v for k, v in val.items()},
