@@ -61,7 +61,8 @@ NM-Net visual-odometry front end: camera frames in, selected matches and relativ
 
 subscribes  image (sensor_msgs/Image), or image/compressed (sensor_msgs/CompressedImage) with use_compressed:=true;
             camera_info (sensor_msgs/CameraInfo)
-publishes   ~/matches (sensor_msgs/PointCloud2: u0 v0 u1 v1 score per selected match),
+publishes   ~/matches (sensor_msgs/PointCloud2: u0 v0 u1 v1 score track_id per selected match; a track's id
+            follows its point from message to message),
             ~/relative_pose (geometry_msgs/PoseWithCovarianceStamped: the current camera in the previous one's
             frame, unit translation direction), ~/debug_image (sensor_msgs/Image), /diagnostics
 service     ~/reset (std_srvs/srv/Trigger): the next frame starts a new chain

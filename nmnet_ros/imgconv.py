@@ -106,13 +106,28 @@ def array_to_image_fields(img: np.ndarray) -> dict:
             "step": img.shape[1] * ch * img.dtype.itemsize, "data": img.tobytes()}
 
 
-MATCH_FIELDS = ("u0", "v0", "u1", "v1", "score")
+# ~/matches' point layout: name, sensor_msgs/PointField datatype (7 FLOAT32, 6 UINT32); 24 bytes, little-endian
+MATCH_FIELDS = (("u0", 7), ("v0", 7), ("u1", 7), ("v1", 7), ("score", 7), ("track_id", 6))
+_MATCH_DTYPE = np.dtype([(name, "<f4" if kind == 7 else "<u4") for name, kind in MATCH_FIELDS])
 
 
-def matches_to_cloud_fields(k0: np.ndarray, k1: np.ndarray, scores: np.ndarray) -> dict:
-    """One point per match with float32 fields u0 v0 u1 v1 score -> PointCloud2 fields (offsets, data)."""
-    pts = np.concatenate([np.asarray(k0, np.float32).reshape(-1, 2), np.asarray(k1, np.float32).reshape(-1, 2),
-                          np.asarray(scores, np.float32).reshape(-1, 1)], 1)
-    n = len(pts)
-    return {"height": 1, "width": n, "point_step": 20, "row_step": 20 * n, "is_bigendian": False, "is_dense": True,
-            "fields": [(name, 4 * i) for i, name in enumerate(MATCH_FIELDS)], "data": pts.tobytes()}
+def matches_to_cloud_fields(k0: np.ndarray, k1: np.ndarray, scores: np.ndarray, track_ids: np.ndarray) -> dict:
+    """One point per match (float32 u0 v0 u1 v1 score, uint32 track_id) -> PointCloud2 fields: (name, offset,
+    datatype) triples and the data. Track ids wrap at 2**32 (see tracks.py)."""
+    pts = np.empty(len(scores), _MATCH_DTYPE)
+    k0, k1 = np.asarray(k0, np.float32).reshape(-1, 2), np.asarray(k1, np.float32).reshape(-1, 2)
+    pts["u0"], pts["v0"], pts["u1"], pts["v1"] = k0[:, 0], k0[:, 1], k1[:, 0], k1[:, 1]
+    pts["score"] = scores
+    pts["track_id"] = np.asarray(track_ids, np.int64) % 2**32
+    n, step = len(pts), _MATCH_DTYPE.itemsize
+    return {"height": 1, "width": n, "point_step": step, "row_step": step * n, "is_bigendian": False, "is_dense": True,
+            "fields": [(name, _MATCH_DTYPE.fields[name][1], kind) for name, kind in MATCH_FIELDS], "data": pts.tobytes()}
+
+
+def matches_of_cloud(point_step: int, fields: list, data: Buffer) -> dict[str, np.ndarray]:
+    """A ``~/matches`` PointCloud2 read back by its field names (any rclpy or rosbags message's fields)."""
+    kinds = {7: "<f4", 6: "<u4"}
+    dtype = np.dtype({"names": [f.name for f in fields], "formats": [kinds[f.datatype] for f in fields],
+                      "offsets": [f.offset for f in fields], "itemsize": point_step})
+    pts = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data.tobytes(), dtype)
+    return {name: pts[name] for name in dtype.names}

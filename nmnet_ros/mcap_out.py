@@ -72,8 +72,8 @@ class McapOutput:
         t_ns = int(round(stamp * 1e9))
         hdr = self._header(stamp, frame_id)
         sel = result.mask
-        f = matches_to_cloud_fields(result.k0[sel], result.k1[sel], result.scores[sel])
-        fields = [T["sensor_msgs/msg/PointField"](name=n, offset=o, datatype=7, count=1) for n, o in f["fields"]]
+        f = matches_to_cloud_fields(result.k0[sel], result.k1[sel], result.scores[sel], result.track_ids[sel])
+        fields = [T["sensor_msgs/msg/PointField"](name=n, offset=o, datatype=d, count=1) for n, o, d in f["fields"]]
         cloud = T["sensor_msgs/msg/PointCloud2"](header=hdr, height=1, width=f["width"], fields=fields, is_bigendian=False,
                                                  point_step=f["point_step"], row_step=f["row_step"],
                                                  data=np.frombuffer(f["data"], np.uint8), is_dense=True)

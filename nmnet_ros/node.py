@@ -436,10 +436,10 @@ class NMNetNode(Node):
             self._warn("pose_failed", "pose estimation failed on the selected matches")
         sel = r.mask
         cloud = PointCloud2(header=header)
-        f = matches_to_cloud_fields(r.k0[sel], r.k1[sel], r.scores[sel])
+        f = matches_to_cloud_fields(r.k0[sel], r.k1[sel], r.scores[sel], r.track_ids[sel])
         cloud.height, cloud.width, cloud.point_step, cloud.row_step = f["height"], f["width"], f["point_step"], f["row_step"]
         cloud.is_bigendian, cloud.is_dense = f["is_bigendian"], f["is_dense"]
-        cloud.fields = [PointField(name=n, offset=o, datatype=PointField.FLOAT32, count=1) for n, o in f["fields"]]
+        cloud.fields = [PointField(name=n, offset=o, datatype=d, count=1) for n, o, d in f["fields"]]
         cloud.data = f["data"]
         self.pub_matches.publish(cloud)
         pose_msg = PoseWithCovarianceStamped(header=header)

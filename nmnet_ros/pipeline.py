@@ -28,6 +28,7 @@ from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, Selection, build
+from .tracks import NO_TRACK, continue_tracks
 
 DEFAULT_CONFIG: dict = {
     "detector": DEFAULT_DETECTOR,  # or "hessian-affine" (kornia reference), "sift" (similarity frames)
@@ -138,6 +139,7 @@ class FrameResult:
     k1: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))  # current frame, pixels
     scores: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     mask: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    track_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # per match; NO_TRACK if not selected
     pose: PoseEstimate | None = None
     timings_ms: dict[str, float] = field(default_factory=dict)
     num_keypoints: int = 0
@@ -160,6 +162,7 @@ class Prepared:
     match_key: tuple = ()  # the matching settings they were made with
     detector: Detector | None = None  # the detector that made ``feats``: frames of two detectors are never related
     camera: Camera | None = None  # the front end's camera when the frame was prepared (fitted to its size in the node)
+    track_ids: np.ndarray | None = None  # per keypoint, once related (see tracks.py); None: in no track
 
 
 def related(a: Prepared, b: Prepared) -> bool:
@@ -181,6 +184,7 @@ class Frontend:
         self.prev: tuple[float, Prepared] | None = None  # the previous frame: stamp, the first stage's output
         self._last_prepared: Prepared | None = None  # the first stage's own previous frame
         self._cost_ms: dict[str, float] = {}  # running means of the stages' parts, for match_stage: auto
+        self._next_track = 0  # the first unused track id (ids are never reused, not even after a restart)
 
     def reconfigure(self, changes: dict) -> None:
         """Apply config changes while running (the node's ``ros2 param set``).
@@ -201,6 +205,16 @@ class Frontend:
         if detector is not self.detector:
             self.detector = detector  # the previous frame's features are of the old one: the next frame is a first frame
             self._cost_ms.clear()  # other features, other costs
+
+    def _continue_tracks(self, before: Prepared, p: Prepared, idx: np.ndarray, mask: np.ndarray,
+                         scores: np.ndarray) -> np.ndarray:
+        """Track ids of the selected matches (one per match, NO_TRACK for the others); keeps ``p``'s for its successor."""
+        prev_ids = before.track_ids if before.track_ids is not None else np.full(len(before.feats), NO_TRACK, np.int64)
+        p.track_ids, selected, self._next_track = continue_tracks(prev_ids, idx[mask], scores[mask], len(p.feats),
+                                                                  self._next_track)
+        ids = np.full(len(idx), NO_TRACK, np.int64)
+        ids[mask] = selected
+        return ids
 
     def reset(self) -> None:
         """Forget the previous frame (the next frame starts a new chain)."""
@@ -274,7 +288,8 @@ class Frontend:
         k0, k1 = before.keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
         cam = camera if size == p.full else camera.resized(*size, p.full)
         base = dict(k0=to_frame_pixels(k0, size, p.full), k1=to_frame_pixels(k1, size, p.full), timings_ms=timings,
-                    num_keypoints=len(feats), scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool))
+                    num_keypoints=len(feats), scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool),
+                    track_ids=np.full(len(m), NO_TRACK, np.int64))
         if len(m) < c["min_matches"]:
             return FrameResult(stamp, "too_few_matches", **base)
         corr = Correspondences(k0, k1, before.frames[m.idx[:, 0]], feats.frames[m.idx[:, 1]],
@@ -285,6 +300,7 @@ class Frontend:
         self._note_cost("rest", timings["select+pose"])
         base["scores"] = sel.scores.astype(np.float32) if sel.scores is not None else sel.mask.astype(np.float32)
         base["mask"] = sel.mask
+        base["track_ids"] = self._continue_tracks(prev[1], p, m.idx, sel.mask, base["scores"])
         if sel.mask.sum() < c["min_matches"]:
             return FrameResult(stamp, "too_few_matches", **base)
         # No measurable baseline: the camera stood (flow below static_flow_px) or only turned (the rotation fitted

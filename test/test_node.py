@@ -12,6 +12,7 @@ import pytest
 
 from nmnet_ros.datasets import Sequence
 from nmnet_ros.geometry import rotation_error_deg
+from nmnet_ros.imgconv import matches_of_cloud
 from nmnet_ros.params import read_params_file
 
 from .conftest import ROOT, data_dir
@@ -172,8 +173,14 @@ def check_kitti_run(peer: Peer, seq: Sequence, frames, network: bool = True) -> 
     print("rotation errors (deg):", np.round(errs, 3))
     assert np.mean(np.array(errs) < 2.0) >= 0.9
     m = peer.matches[-1][1]
-    assert [f.name for f in m.fields] == ["u0", "v0", "u1", "v1", "score"] and m.width > 50
-    scores = np.frombuffer(bytes(m.data), np.float32).reshape(-1, 5)[:, 4]
+    assert [f.name for f in m.fields] == ["u0", "v0", "u1", "v1", "score", "track_id"] and m.width > 50
+    scores = matches_of_cloud(m.point_step, m.fields, m.data)["score"]
+    # tracks: a match continues the previous message's match whose current keypoint is its previous one, by id
+    before, now = (matches_of_cloud(c.point_step, c.fields, c.data) for _, c in peer.matches[-2:])
+    ids_at = {(u, v): t for u, v, t in zip(before["u1"], before["v1"], before["track_id"], strict=True)}
+    went_on = [(ids_at[u, v], t) for u, v, t in zip(now["u0"], now["v0"], now["track_id"], strict=True) if (u, v) in ids_at]
+    print(f"tracks: {len(went_on)} of {m.width} matches continue one of the {len(ids_at)} before")
+    assert len(went_on) > 0.3 * m.width and all(a == b for a, b in went_on) and len(set(now["track_id"])) == m.width
     if network:
         assert scores.min() > 0.5 and scores.max() <= 1.0 and len(np.unique(scores)) > 1  # NM-Net probabilities, not a 0/1 mask
     else:
@@ -519,7 +526,8 @@ def published_matches(peer: Peer, stamp: float) -> np.ndarray:
     """The ~/matches cloud published for the frame at ``stamp``: rows u0 v0 u1 v1 score."""
     assert peer.wait_result_for(stamp), f"no matches published for the frame at {stamp}"
     m = next(m for s, (_, m) in zip(peer.stamps(peer.matches), peer.matches, strict=True) if abs(s - stamp) < 1e-6)
-    return np.frombuffer(bytes(m.data), np.float32).reshape(-1, 5)
+    fields = matches_of_cloud(m.point_step, m.fields, m.data)  # by name, as a consumer reads it
+    return np.stack([fields[name] for name in ("u0", "v0", "u1", "v1", "score")], 1)
 
 
 def published_scores(peer: Peer, stamp: float) -> np.ndarray:

@@ -1,0 +1,48 @@
+"""Feature tracks: one id per scene point followed from frame to frame through the selected matches.
+
+A VO/SLAM back end that optimises over several frames (a sliding window, bundle adjustment) needs to know that a
+match of frame pair (t-1, t) and one of (t, t+1) observe the same point. Each frame's features are computed once, so
+a keypoint of frame t is the current side of one pair and the previous side of the next: a selected match whose
+previous keypoint carries an id passes it on to its current keypoint, any other selected match starts a new track.
+Ids are handed out only to keypoints that are part of a selected match, in increasing order, so a camera at 30 Hz
+starting ~200 tracks per frame takes days to run through the published uint32 (which then wraps).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+NO_TRACK = -1  # a keypoint that is in no selected match (yet)
+
+
+def continue_tracks(prev_ids: np.ndarray, idx: np.ndarray, scores: np.ndarray, num_current: int,
+                    next_id: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Track ids for one frame pair's selected matches.
+
+    ``prev_ids``: the previous frame's id per keypoint (NO_TRACK where none); ``idx``: (M, 2) keypoint indices
+    (previous, current) of the selected matches; ``scores``: their scores, which decide when two matches share a
+    keypoint (the nearest-neighbour selections can pair one keypoint twice); ``num_current``: the current frame's
+    keypoints; ``next_id``: the first unused id.
+
+    Returns the current frame's ids per keypoint, one id per selected match (unique within the pair: the better
+    match of a shared keypoint continues the track, the other gets an id of its own), and the next unused id.
+    """
+    cur_ids = np.full(num_current, NO_TRACK, np.int64)
+    match_ids = np.empty(len(idx), np.int64)
+    if not len(idx):
+        return cur_ids, match_ids, next_id
+    order = np.argsort(-np.asarray(scores, np.float64), kind="stable")  # best first
+    used_prev, used_cur = set(), set()
+    for m in order:
+        i0, i1 = int(idx[m, 0]), int(idx[m, 1])
+        if i0 in used_prev or i1 in used_cur:  # a keypoint already taken by a better match: a track of its own
+            match_ids[m], next_id = next_id, next_id + 1
+            continue
+        used_prev.add(i0)
+        used_cur.add(i1)
+        if prev_ids[i0] == NO_TRACK:  # the track starts with this pair
+            match_ids[m], next_id = next_id, next_id + 1
+        else:
+            match_ids[m] = prev_ids[i0]
+        cur_ids[i1] = match_ids[m]
+    return cur_ids, match_ids, next_id

@@ -1,0 +1,85 @@
+"""Feature tracks: ids follow a scene point through the selected matches, frame after frame."""
+
+import numpy as np
+
+from nmnet_ros.datasets import Sequence
+from nmnet_ros.imgconv import matches_of_cloud, matches_to_cloud_fields
+from nmnet_ros.tracks import NO_TRACK, continue_tracks
+
+from .conftest import data_dir
+
+
+def test_a_match_passes_its_previous_keypoints_id_on_and_others_start_tracks():
+    prev_ids = np.array([7, NO_TRACK, 9, NO_TRACK])
+    idx = np.array([[0, 2], [1, 0], [2, 1]])  # keypoint 0 (track 7) -> 2, 1 (none) -> 0, 2 (track 9) -> 1
+    cur, ids, nxt = continue_tracks(prev_ids, idx, np.ones(3), num_current=3, next_id=20)
+    assert ids.tolist() == [7, 20, 9] and cur.tolist() == [20, 9, 7] and nxt == 21
+
+
+def test_a_keypoint_two_matches_share_goes_to_the_better_one():
+    """Nearest-neighbour selections can pair one keypoint twice: the better-scored match continues the track, the
+    other gets an id of its own, so ids stay unique within a message and the next frame follows one of them."""
+    prev_ids = np.array([3, 4, NO_TRACK])
+    idx = np.array([[0, 1], [1, 1], [2, 0], [2, 2]])  # current 1 twice (tracks 3, 4); previous 2 twice
+    cur, ids, nxt = continue_tracks(prev_ids, idx, np.array([0.6, 0.9, 0.7, 0.8]), num_current=3, next_id=10)
+    assert ids[1] == 4 and ids[0] not in (3, 4) and cur[1] == 4  # the 0.9 match won keypoint 1
+    assert cur[2] == ids[3] and cur[0] == NO_TRACK and ids[2] != ids[3]  # the 0.8 match won previous keypoint 2
+    assert len(set(ids.tolist())) == 4 and nxt == 13
+    assert continue_tracks(prev_ids, np.zeros((0, 2), int), np.zeros(0), 3, 5)[2] == 5  # nothing selected: no ids
+
+
+def test_the_matches_message_carries_the_ids_and_reads_back():
+    k0, k1 = np.array([[1.5, 2.0], [3.0, 4.25]]), np.array([[5.0, 6.0], [7.0, 8.5]])
+    f = matches_to_cloud_fields(k0, k1, np.array([0.9, 0.7]), np.array([12, 2**32 + 5]))
+    assert [(n, o, d) for n, o, d in f["fields"]][-1] == ("track_id", 20, 6) and f["point_step"] == 24
+
+    class Field:
+        def __init__(self, name, offset, datatype):
+            self.name, self.offset, self.datatype = name, offset, datatype
+
+    back = matches_of_cloud(f["point_step"], [Field(*t) for t in f["fields"]], f["data"])
+    assert back["u0"].tolist() == [1.5, 3.0] and back["v1"].tolist() == [6.0, 8.5]
+    assert back["track_id"].tolist() == [12, 5]  # uint32: wraps
+    assert np.allclose(back["score"], [0.9, 0.7])
+
+
+def test_tracks_follow_points_through_kitti_frames_and_restart_with_new_ids():
+    """Six KITTI-07 frames through the front end: each pair's selected matches carry unique ids; a match whose
+    previous keypoint was the current keypoint of a selected match the pair before carries that match's id (the
+    keypoints are the same features, so their pixels are equal); most selected matches continue a track; tracks
+    that continue are consistent with the ground-truth motion. After a reset no id comes back."""
+    from nmnet_ros.geometry import essential_from_pose, sampson_distance
+    from nmnet_ros.pipeline import Frontend
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    fe = Frontend(seq.camera, {})
+    before, seen, first_seen = None, set(), {}  # first_seen: track id -> (frame, pixel) where it starts
+    for i in range(6):
+        r = fe.process(seq.image(i), float(i))
+        if i == 0:
+            assert r.status == "first_frame"
+            continue
+        assert r.status == "ok"
+        ids = r.track_ids[r.mask]
+        assert len(np.unique(ids)) == len(ids) and (r.track_ids[~r.mask] == NO_TRACK).all()
+        if before is not None:
+            at = {tuple(k): t for k, t in zip(before[0], before[1], strict=True)}
+            went_on = [(at[tuple(k)], t) for k, t in zip(r.k0[r.mask], ids, strict=True) if tuple(k) in at]
+            print(f"frame {i}: {len(went_on)} of {len(ids)} selected matches continue a track")
+            assert len(went_on) > 0.4 * len(ids) and all(a == b for a, b in went_on)
+            assert not (set(ids.tolist()) - {a for a, _ in went_on}) & seen  # new tracks get new ids
+        for k0, t in zip(r.k0[r.mask], ids, strict=True):
+            first_seen.setdefault(int(t), (i - 1, k0))
+        ends = [(first_seen[int(t)][1], k1) for k1, t in zip(r.k1[r.mask], ids, strict=True) if first_seen[int(t)][0] == i - 3]
+        if ends:  # tracks over 3 frame steps: their ends satisfy the ground-truth epipolar geometry (pixels)
+            E = essential_from_pose(*seq.relative_pose(i - 3, i))
+            d = seq.camera.focal * sampson_distance(E, seq.camera.normalize(np.array([a for a, _ in ends])),
+                                                    seq.camera.normalize(np.array([b for _, b in ends])))
+            print(f"frame {i}: {len(ends)} tracks from frame {i - 3}, Sampson distance median {np.median(d):.2f} px")
+            assert len(ends) > 50 and np.median(d) < 1.0
+        before = (r.k1[r.mask], ids)
+        seen |= set(ids.tolist())
+    fe.reset()
+    fe.process(seq.image(10), 10.0)
+    r = fe.process(seq.image(11), 11.0)
+    assert r.status == "ok" and not set(r.track_ids[r.mask].tolist()) & seen
