@@ -25,10 +25,12 @@ from .caminfo import info_fields
 from .datasets import Trajectory
 from .dds import LARGE_FRAMES_PROFILE
 from .geometry import Camera
+from .imgconv import matches_of_cloud
 from .mcap_out import McapOutput
 from .params import NODE_NAME
 from .posemsg import estimate_of_message
 from .replay import PairScores, truth_missed
+from .tracks import track_summary
 
 # the ROS packages the live mode runs on: the player's (this module) and the node's (node.py, its own process);
 # test_core_no_ros checks that both modules import no other
@@ -263,3 +265,9 @@ def score_recording(path: Path, truth: Trajectory | None) -> dict:
         scores.add(*estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance),
                    T_prev, T_cur, stamp)
     return scores.summary()
+
+
+def recorded_tracks(path: Path) -> dict:
+    """The feature tracks of a recorded ``~/matches`` stream (:func:`~nmnet_ros.tracks.track_summary`)."""
+    return track_summary(matches_of_cloud(m.msg.point_step, m.msg.fields, m.msg.data)["track_id"]
+                         for m in BagReader(path).messages({f"/{NODE_NAME}/matches"}))

@@ -29,6 +29,7 @@ from .mcap_out import McapOutput
 from .model import load_model
 from .params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
 from .pipeline import RESTARTS, FrameResult, Frontend, stamp_order, stamp_warning
+from .tracks import track_summary
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
 STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
@@ -150,6 +151,7 @@ class Run:
             "fps": len(self.results) / self.seconds if self.seconds else 0.0, **self.scores.summary(),
             "matches_per_frame": float(np.mean(matches)) if matches else 0.0,
             "selected_per_frame": float(np.mean(sel)) if sel else 0.0, "status": statuses, "warnings": dict(self.warnings),
+            "tracks": track_summary(r.track_ids[r.mask] for r in self.results),
         }
 
 
@@ -325,7 +327,15 @@ def print_summary(s: dict, name: str) -> None:
     line = f"{name}: {s['processed']}/{s['frames']} frames at {s['fps']:.2f} fps, {s['matches_per_frame']:.0f} matches and " \
            f"{s['selected_per_frame']:.0f} selected per frame"
     print(line)
+    print_tracks(s["tracks"])
     print_scores(s)
+
+
+def print_tracks(t: dict) -> None:
+    """The summary's feature tracks (``~/matches``' track_id), offline and live alike."""
+    if t["count"]:
+        print(f"   tracks: {t['count']}, seen in {t['mean_frames']:.1f} frames on average, {t['share_5_frames']:.1f} % in 5 "
+              f"or more, the longest in {t['longest']}")
 
 
 def print_scores(s: dict) -> None:
@@ -573,6 +583,7 @@ def live_summary(stats: dict, wall: float, scores: dict, params: dict) -> dict:
           f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
     if warnings:  # frames the node skipped for bad input are among the dropped ones too
         print("   the node's warnings (its /diagnostics): " + ", ".join(f"{k} {v}" for k, v in sorted(warnings.items())))
+    print_tracks(summary["tracks"])
     print_scores(summary)
     return summary
 
@@ -580,7 +591,7 @@ def live_summary(stats: dict, wall: float, scores: dict, params: dict) -> dict:
 def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, camera: Camera | None, params: dict,
               truth: Trajectory | None = None, topics: dict[str, str | None] | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
-    from .live import play_live, score_recording
+    from .live import play_live, recorded_tracks, score_recording
 
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
@@ -597,7 +608,8 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
         signal.signal(signal.SIGTERM, old)
         for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
             print(f"warning: {w}")
-    summary = live_summary(stats, time.perf_counter() - t0, score_recording(args.out, truth), params)
+    scores = {**score_recording(args.out, truth), "tracks": recorded_tracks(args.out)}
+    summary = live_summary(stats, time.perf_counter() - t0, scores, params)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
         args.json.write_text(summary_json(summary))

@@ -10,6 +10,8 @@ starting ~200 tracks per frame takes days to run through the published uint32 (w
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
 NO_TRACK = -1  # a keypoint that is in no selected match (yet)
@@ -46,3 +48,18 @@ def continue_tracks(prev_ids: np.ndarray, idx: np.ndarray, scores: np.ndarray, n
             match_ids[m] = prev_ids[i0]
         cur_ids[i1] = match_ids[m]
     return cur_ids, match_ids, next_id
+
+
+def track_summary(per_message: Iterable[np.ndarray]) -> dict:
+    """How long the tracks of a stream of ``~/matches`` messages are, given each message's track ids: ``count``,
+    ``mean_frames`` (the frames a track is seen in: its matches + 1), ``share_5_frames`` (percent of tracks seen in
+    5 frames or more) and ``longest``; zeros for a stream without matches."""
+    lengths: dict[int, int] = {}
+    for ids in per_message:
+        for t in np.asarray(ids).tolist():
+            lengths[t] = lengths.get(t, 0) + 1
+    frames = np.fromiter(lengths.values(), np.int64, len(lengths)) + 1
+    if not len(frames):
+        return {"count": 0, "mean_frames": 0.0, "share_5_frames": 0.0, "longest": 0}
+    return {"count": len(frames), "mean_frames": float(frames.mean()), "share_5_frames": float(100 * np.mean(frames >= 5)),
+            "longest": int(frames.max())}

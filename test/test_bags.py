@@ -416,6 +416,12 @@ def test_live_replay_agrees_with_offline(tmp_path):
     counts = read_output(tmp_path / "live.mcap")
     assert counts["/nmnet_node/matches"] == counts["/nmnet_node/relative_pose"] == s_live["processed"] - 1
     assert s_live["median_rot_deg"] < 1.0 and abs(s_live["median_rot_deg"] - s_off["median_rot_deg"]) < 0.5
+    # feature tracks, from the recorded ~/matches (live) and from the results (offline): the same when no frame dropped
+    assert s_off["tracks"]["count"] > 1000 and 2.0 < s_off["tracks"]["mean_frames"] and s_off["tracks"]["longest"] >= 10
+    if s_live["processed"] == 40:
+        assert s_live["tracks"] == pytest.approx(s_off["tracks"], rel=0.05)
+    else:
+        assert s_live["tracks"]["count"] > 0
 
 
 def test_live_replay_delivers_raw_frames_over_half_a_megabyte(tmp_path):

@@ -1,10 +1,11 @@
 """Feature tracks: ids follow a scene point through the selected matches, frame after frame."""
 
 import numpy as np
+import pytest
 
 from nmnet_ros.datasets import Sequence
 from nmnet_ros.imgconv import matches_of_cloud, matches_to_cloud_fields
-from nmnet_ros.tracks import NO_TRACK, continue_tracks
+from nmnet_ros.tracks import NO_TRACK, continue_tracks, track_summary
 
 from .conftest import data_dir
 
@@ -83,3 +84,10 @@ def test_tracks_follow_points_through_kitti_frames_and_restart_with_new_ids():
     fe.process(seq.image(10), 10.0)
     r = fe.process(seq.image(11), 11.0)
     assert r.status == "ok" and not set(r.track_ids[r.mask].tolist()) & seen
+
+
+def test_a_streams_tracks_are_summed_up_by_length():
+    """Track 1 in 3 messages (4 frames), track 2 in 1 (2 frames), track 3 in 5 (6 frames); no messages: zeros."""
+    t = track_summary([np.array([1, 2, 3]), np.array([1, 3]), np.array([1, 3]), np.array([3]), np.array([3])])
+    assert t == pytest.approx({"count": 3, "mean_frames": 4.0, "share_5_frames": 100 / 3, "longest": 6})
+    assert track_summary([])["count"] == 0 and track_summary([np.zeros(0, np.int64)])["longest"] == 0
