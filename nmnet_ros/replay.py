@@ -565,9 +565,10 @@ def live_node_args(args: argparse.Namespace) -> list[str]:
     return out
 
 
-def live_summary(stats: dict, wall: float, scores: dict, params: dict) -> dict:
+def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: dict) -> dict:
     """A live replay's summary from the player's ``stats`` (:func:`~.live.play_live`), printed: frames published,
-    processed, dropped and why (the node's last /diagnostics; ``None`` where no report came), latency, the scores."""
+    processed, dropped and why (the node's last /diagnostics; ``None`` where no report came), latency, the recording's
+    ``scores`` and ``tracks``."""
     lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
     processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result
     diag = stats["diagnostics"]  # the node's last /diagnostics: why frames were dropped
@@ -576,7 +577,8 @@ def live_summary(stats: dict, wall: float, scores: dict, params: dict) -> dict:
                "received": int(diag["frames_received"]) if diag else None,  # None: no report came from the node
                "dropped_busy": int(diag["frames_dropped"]) if diag else None,
                "fps": processed / wall, "latency_p50_ms": float(np.percentile(lat, 50)),
-               "latency_p90_ms": float(np.percentile(lat, 90)), **scores, "warnings": warnings, "parameters": params}
+               "latency_p90_ms": float(np.percentile(lat, 90)), **scores, "tracks": tracks, "warnings": warnings,
+               "parameters": params}
     why = (f" ({summary['dropped_busy']} replaced by a newer frame while the node was busy, "
            f"{summary['frames'] - summary['received']} not received)" if diag and summary["dropped"] else "")
     print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped{why}, "
@@ -608,8 +610,8 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
         signal.signal(signal.SIGTERM, old)
         for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
             print(f"warning: {w}")
-    scores = {**score_recording(args.out, truth), "tracks": recorded_tracks(args.out)}
-    summary = live_summary(stats, time.perf_counter() - t0, scores, params)
+    summary = live_summary(stats, time.perf_counter() - t0, score_recording(args.out, truth), recorded_tracks(args.out),
+                           params)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
         args.json.write_text(summary_json(summary))
