@@ -127,6 +127,8 @@ def matches_to_cloud_fields(k0: np.ndarray, k1: np.ndarray, scores: np.ndarray, 
 def matches_of_cloud(point_step: int, fields: list, data: Buffer) -> dict[str, np.ndarray]:
     """A ``~/matches`` PointCloud2 read back by its field names (any rclpy or rosbags message's fields)."""
     kinds = {7: "<f4", 6: "<u4"}
+    if odd := [f.name for f in fields if f.datatype not in kinds]:
+        raise ValueError(f"not a ~/matches cloud: fields {odd} are neither float32 nor uint32")
     dtype = np.dtype({"names": [f.name for f in fields], "formats": [kinds[f.datatype] for f in fields],
                       "offsets": [f.offset for f in fields], "itemsize": point_step})
     pts = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data.tobytes(), dtype)

@@ -26,26 +26,24 @@ def continue_tracks(prev_ids: np.ndarray, idx: np.ndarray, scores: np.ndarray, n
     keypoint (the nearest-neighbour selections can pair one keypoint twice); ``num_current``: the current frame's
     keypoints; ``next_id``: the first unused id.
 
-    Returns the current frame's ids per keypoint, one id per selected match (unique within the pair: the better
-    match of a shared keypoint continues the track, the other gets an id of its own), and the next unused id.
+    Returns the current frame's ids per keypoint, one id per selected match (unique within the pair), and the next
+    unused id. Of two matches sharing a current keypoint the better one goes on with it, the other gets an id used
+    once; of two sharing a previous keypoint the better one continues its track, the other starts a new one.
     """
     cur_ids = np.full(num_current, NO_TRACK, np.int64)
     match_ids = np.empty(len(idx), np.int64)
-    if not len(idx):
-        return cur_ids, match_ids, next_id
     order = np.argsort(-np.asarray(scores, np.float64), kind="stable")  # best first
-    used_prev, used_cur = set(), set()
+    used_prev: set[int] = set()
     for m in order:
         i0, i1 = int(idx[m, 0]), int(idx[m, 1])
-        if i0 in used_prev or i1 in used_cur:  # a keypoint already taken by a better match: a track of its own
+        if cur_ids[i1] != NO_TRACK:  # the current keypoint went on with a better match: an id of its own, used once
             match_ids[m], next_id = next_id, next_id + 1
             continue
-        used_prev.add(i0)
-        used_cur.add(i1)
-        if prev_ids[i0] == NO_TRACK:  # the track starts with this pair
+        if prev_ids[i0] == NO_TRACK or i0 in used_prev:  # a track starts with this pair
             match_ids[m], next_id = next_id, next_id + 1
         else:
             match_ids[m] = prev_ids[i0]
+        used_prev.add(i0)
         cur_ids[i1] = match_ids[m]
     return cur_ids, match_ids, next_id
 

@@ -18,14 +18,15 @@ def test_a_match_passes_its_previous_keypoints_id_on_and_others_start_tracks():
 
 
 def test_a_keypoint_two_matches_share_goes_to_the_better_one():
-    """Nearest-neighbour selections can pair one keypoint twice: the better-scored match continues the track, the
-    other gets an id of its own, so ids stay unique within a message and the next frame follows one of them."""
-    prev_ids = np.array([3, 4, NO_TRACK])
-    idx = np.array([[0, 1], [1, 1], [2, 0], [2, 2]])  # current 1 twice (tracks 3, 4); previous 2 twice
+    """Nearest-neighbour selections can pair one keypoint twice: the better-scored match goes on with it, so ids stay
+    unique within a message and the next frame follows one track per keypoint."""
+    prev_ids = np.array([3, 4, 5])
+    idx = np.array([[0, 1], [1, 1], [2, 0], [2, 2]])  # current 1 twice (tracks 3, 4); previous 2 (track 5) twice
     cur, ids, nxt = continue_tracks(prev_ids, idx, np.array([0.6, 0.9, 0.7, 0.8]), num_current=3, next_id=10)
-    assert ids[1] == 4 and ids[0] not in (3, 4) and cur[1] == 4  # the 0.9 match won keypoint 1
-    assert cur[2] == ids[3] and cur[0] == NO_TRACK and ids[2] != ids[3]  # the 0.8 match won previous keypoint 2
-    assert len(set(ids.tolist())) == 4 and nxt == 13
+    assert ids[1] == 4 and cur[1] == 4 and ids[0] not in (3, 4, 5)  # the 0.9 match won current keypoint 1
+    assert ids[3] == 5 and cur[2] == 5  # the 0.8 match continues previous keypoint 2's track
+    assert ids[2] not in (3, 4, 5) and cur[0] == ids[2]  # the 0.7 match starts a track at current keypoint 0
+    assert len(set(ids.tolist())) == 4 and nxt == 12 and ids[0] not in cur  # the 0.6 match's id is used once
     assert continue_tracks(prev_ids, np.zeros((0, 2), int), np.zeros(0), 3, 5)[2] == 5  # nothing selected: no ids
 
 
@@ -42,6 +43,8 @@ def test_the_matches_message_carries_the_ids_and_reads_back():
     assert back["u0"].tolist() == [1.5, 3.0] and back["v1"].tolist() == [6.0, 8.5]
     assert back["track_id"].tolist() == [12, 5]  # uint32: wraps
     assert np.allclose(back["score"], [0.9, 0.7])
+    with pytest.raises(ValueError, match=r"not a ~/matches cloud: fields \['x'\]"):  # a float64 point cloud, say
+        matches_of_cloud(24, [Field("x", 0, 8)], f["data"])
 
 
 def test_tracks_follow_points_through_kitti_frames_and_restart_with_new_ids():
