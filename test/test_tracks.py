@@ -94,3 +94,37 @@ def test_a_streams_tracks_are_summed_up_by_length():
     t = track_summary([np.array([1, 2, 3]), np.array([1, 3]), np.array([1, 3]), np.array([3]), np.array([3])])
     assert t == pytest.approx({"count": 3, "mean_frames": 4.0, "share_5_frames": 100 / 3, "longest": 6})
     assert track_summary([])["count"] == 0 and track_summary([np.zeros(0, np.int64)])["longest"] == 0
+
+
+def test_the_readmes_back_end_snippet_collects_the_tracks_of_a_recording(tmp_path):
+    """The README's "In a back end" code, run as written on the ~/matches of a replay's output file: one entry per
+    track, each with the frames it is seen in (its first message brings two), as the replay's summary counts them."""
+    import re
+
+    from nmnet_ros.bags import BagReader
+    from nmnet_ros.mcap_out import McapOutput
+    from nmnet_ros.pipeline import Frontend
+
+    from .conftest import ROOT
+
+    block = re.search(r"\*\*In a back end\*\*.*?```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
+    seq = Sequence.load(data_dir("kitti-07"))
+    fe, out, ids = Frontend(seq.camera, {}), McapOutput(tmp_path / "out.mcap"), []
+    for i in range(8):
+        r = fe.process(seq.image(i), float(i))
+        if i:  # as the node and the replay: nothing for the first frame
+            out.write_result(r, 1.0 + i)
+            ids.append(r.track_ids[r.mask])
+    out.close()
+    scope: dict = {}
+    exec(block, scope)  # noqa: S102 - the README's own code
+    messages = [m.msg for m in BagReader(tmp_path / "out.mcap").messages({"/nmnet_node/matches"})]
+    for msg in messages:
+        scope["on_matches"](msg)
+    seen = scope["observations"]
+    expected = track_summary(ids)
+    assert len(seen) == expected["count"] and max(len(v) for v in seen.values()) == expected["longest"]
+    for track in seen.values():  # one observation a frame, frame after frame; the first of the first message unstamped
+        stamps = [None if s is None else s.sec + 1e-9 * s.nanosec for s, _, _ in track]
+        start = 1.0 if stamps[0] is None else stamps[0]
+        assert stamps[1:] == [start + k for k in range(1, len(track))] and (stamps[0] is not None or stamps[1] == 2.0)
