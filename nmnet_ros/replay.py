@@ -57,9 +57,13 @@ def frame_error(status: str, pose: PoseEstimate | None, T_prev: np.ndarray | Non
                 ) -> tuple[float, float] | None:
     """(rot, trans) error of one frame's result (a FrameResult's status and pose, or what a recorded
     relative_pose says: ``no_estimate`` too); failures count as 180; None when not scorable."""
-    if (step := _gt_step(status, T_prev, T_cur)) is None:
-        return None
-    R, t, moving = step
+    step = _gt_step(status, T_prev, T_cur)
+    return None if step is None else _step_error(status, pose, *step)
+
+
+def _step_error(status: str, pose: PoseEstimate | None, R: np.ndarray, t: np.ndarray, moving: bool
+                ) -> tuple[float, float] | None:
+    """:func:`frame_error` against the ground truth's step (R, t, moving) over the pair."""
     if status == "no_motion":
         return None if not moving else (180.0, 180.0)
     if status != "ok" or pose is None:
@@ -83,10 +87,12 @@ class PairScores:
     def add(self, status: str, pose: PoseEstimate | None, T_prev: np.ndarray | None, T_cur: np.ndarray | None,
             stamp: float) -> None:
         """Score the pair that ends at the frame stamped ``stamp``."""
-        if (err := frame_error(status, pose, T_prev, T_cur)) is not None:
+        if (step := _gt_step(status, T_prev, T_cur)) is None:
+            return
+        if (err := _step_error(status, pose, *step)) is not None:
             self.errors.append(err)
             self.stamps.append(stamp)
-        elif pose is not None and (step := _gt_step(status, T_prev, T_cur)) is not None and not step[2]:
+        elif pose is not None and not step[2]:
             self.still.append(rotation_error_deg(pose.R, step[0]))
 
     def summary(self) -> dict:
@@ -343,7 +349,7 @@ def print_scores(s: dict) -> None:
     if s["median_rot_deg"] is not None:
         print(f"   vs ground truth ({s['scored_pairs']} pairs): median rotation error {s['median_rot_deg']:.3f} deg, translation "
               f"{s['median_trans_deg']:.2f} deg, AUC@5/10/20 {s['auc5']:.1f} / {s['auc10']:.1f} / {s['auc20']:.1f}")
-    if s.get("still_pairs"):
+    if s["still_pairs"]:
         print(f"   without motion in the ground truth ({s['still_pairs']} pairs: standing, or turning on the spot): "
               f"median rotation error {s['median_still_rot_deg']:.3f} deg")
 
