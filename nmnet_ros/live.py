@@ -245,29 +245,33 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
 
 def score_recording(path: Path, truth: Trajectory | None) -> dict:
     """Pose errors of a recorded ``~/relative_pose`` stream against ``truth`` (the replay's
-    :func:`~nmnet_ros.replay.ground_truth`), scored as the offline replay scores its results
-    (:class:`~nmnet_ros.replay.PairScores`; "no estimate" is a failure).
+    :func:`~nmnet_ros.replay.ground_truth`); the first part of :func:`recording_summary`."""
+    return recording_summary(path, truth)[0]
 
-    Each message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the
+
+def recording_summary(path: Path, truth: Trajectory | None) -> tuple[dict, dict]:
+    """A recording of the node's outputs, read once: its ``~/relative_pose`` stream scored against ``truth`` as the
+    offline replay scores its results (:class:`~nmnet_ros.replay.PairScores`; "no estimate" is a failure), and the
+    feature tracks of its ``~/matches`` (:func:`~nmnet_ros.tracks.track_summary`).
+
+    Each pose message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the
     first, relative to the node's first frame, which has no message, is not scored.
     """
+    pose_topic, matches_topic = f"/{NODE_NAME}/relative_pose", f"/{NODE_NAME}/matches"
+    poses, track_ids = [], []
+    for m in BagReader(path).messages({pose_topic, matches_topic}):
+        if m.topic == matches_topic:
+            track_ids.append(matches_of_cloud(m.msg.point_step, m.msg.fields, m.msg.data)["track_id"])
+        else:
+            poses.append(m)
     scores = PairScores()
-    if truth is None:  # nothing to score against: the recording is not read
-        return scores.summary()
-    rec = BagReader(path)
-    recorded = list(rec.messages({f"/{NODE_NAME}/relative_pose"}))
-    msgs, stamps = [m.msg for m in recorded], [m.log_time_ns / 1e9 for m in recorded]
-    if note := truth_missed(truth, stamps):
-        print(f"warning: {note}", file=sys.stderr)
-    gt = [None if np.isnan(T[0, 0]) else T for T in truth.poses_at(np.asarray(stamps))]  # each looked up once
-    for msg, stamp, T_prev, T_cur in zip(msgs[1:], stamps[1:], gt, gt[1:], strict=False):
-        o, p = msg.pose.pose.orientation, msg.pose.pose.position
-        scores.add(*estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), msg.pose.covariance),
-                   T_prev, T_cur, stamp)
-    return scores.summary()
-
-
-def recorded_tracks(path: Path) -> dict:
-    """The feature tracks of a recorded ``~/matches`` stream (:func:`~nmnet_ros.tracks.track_summary`)."""
-    return track_summary(matches_of_cloud(m.msg.point_step, m.msg.fields, m.msg.data)["track_id"]
-                         for m in BagReader(path).messages({f"/{NODE_NAME}/matches"}))
+    if truth is not None:
+        msgs, stamps = [m.msg for m in poses], [m.log_time_ns / 1e9 for m in poses]
+        if note := truth_missed(truth, stamps):
+            print(f"warning: {note}", file=sys.stderr)
+        gt = [None if np.isnan(T[0, 0]) else T for T in truth.poses_at(np.asarray(stamps))]  # each looked up once
+        for msg, stamp, T_prev, T_cur in zip(msgs[1:], stamps[1:], gt, gt[1:], strict=False):
+            o, p = msg.pose.pose.orientation, msg.pose.pose.position
+            scores.add(*estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]),
+                                            msg.pose.covariance), T_prev, T_cur, stamp)
+    return scores.summary(), track_summary(track_ids)

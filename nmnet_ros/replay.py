@@ -599,7 +599,7 @@ def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: d
 def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, camera: Camera | None, params: dict,
               truth: Trajectory | None = None, topics: dict[str, str | None] | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
-    from .live import play_live, recorded_tracks, score_recording
+    from .live import play_live, recording_summary
 
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
@@ -616,8 +616,7 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
         signal.signal(signal.SIGTERM, old)
         for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
             print(f"warning: {w}")
-    summary = live_summary(stats, time.perf_counter() - t0, score_recording(args.out, truth), recorded_tracks(args.out),
-                           params)
+    summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth), params)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
         args.json.write_text(summary_json(summary))
