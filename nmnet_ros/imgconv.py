@@ -46,6 +46,11 @@ ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
 }
 
 
+def _bytes(data: Buffer) -> np.ndarray:
+    """A message's data as a flat uint8 array, without a copy."""
+    return np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.view(np.uint8).ravel()
+
+
 class ImageError(ValueError):
     """An image message that cannot be turned into pixels."""
 
@@ -63,7 +68,7 @@ def image_to_array(height: int, width: int, encoding: str, step: int, data: Buff
     row = width * ch * dtype.itemsize
     if step < row:
         raise ImageError(f"step {step} is smaller than width*channels*bytes = {row} for {encoding}")
-    buf = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.view(np.uint8).ravel()
+    buf = _bytes(data)
     if buf.size < height * step:
         raise ImageError(f"image data has {buf.size} bytes, expected height*step = {height}*{step} = {height * step}; "
                          "the message is truncated")
@@ -79,7 +84,7 @@ def image_to_array(height: int, width: int, encoding: str, step: int, data: Buff
 
 def decode_compressed(fmt: str, data: Buffer) -> np.ndarray:
     """CompressedImage (jpeg/png) -> array as cv2.imdecode gives it (mono or BGR)."""
-    buf = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.view(np.uint8).ravel()
+    buf = _bytes(data)
     if buf.size == 0:
         raise ImageError("compressed image has no data")
     img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
@@ -108,7 +113,8 @@ def array_to_image_fields(img: np.ndarray) -> dict:
 
 # ~/matches' point layout: name, sensor_msgs/PointField datatype (7 FLOAT32, 6 UINT32); 24 bytes, little-endian
 MATCH_FIELDS = (("u0", 7), ("v0", 7), ("u1", 7), ("v1", 7), ("score", 7), ("track_id", 6))
-_MATCH_DTYPE = np.dtype([(name, "<f4" if kind == 7 else "<u4") for name, kind in MATCH_FIELDS])
+_POINT_TYPES = {7: "<f4", 6: "<u4"}  # the PointField datatypes ~/matches uses, as numpy types
+_MATCH_DTYPE = np.dtype([(name, _POINT_TYPES[kind]) for name, kind in MATCH_FIELDS])
 
 
 def matches_to_cloud_fields(k0: np.ndarray, k1: np.ndarray, scores: np.ndarray, track_ids: np.ndarray) -> dict:
@@ -126,10 +132,9 @@ def matches_to_cloud_fields(k0: np.ndarray, k1: np.ndarray, scores: np.ndarray, 
 
 def matches_of_cloud(point_step: int, fields: list, data: Buffer) -> dict[str, np.ndarray]:
     """A ``~/matches`` PointCloud2 read back by its field names (any rclpy or rosbags message's fields)."""
-    kinds = {7: "<f4", 6: "<u4"}
-    if odd := [f.name for f in fields if f.datatype not in kinds]:
+    if odd := [f.name for f in fields if f.datatype not in _POINT_TYPES]:
         raise ValueError(f"not a ~/matches cloud: fields {odd} are neither float32 nor uint32")
-    dtype = np.dtype({"names": [f.name for f in fields], "formats": [kinds[f.datatype] for f in fields],
+    dtype = np.dtype({"names": [f.name for f in fields], "formats": [_POINT_TYPES[f.datatype] for f in fields],
                       "offsets": [f.offset for f in fields], "itemsize": point_step})
-    pts = np.frombuffer(bytes(data) if not isinstance(data, np.ndarray) else data.tobytes(), dtype)
+    pts = np.frombuffer(_bytes(data), dtype)
     return {name: pts[name] for name in dtype.names}
