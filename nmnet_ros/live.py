@@ -80,13 +80,18 @@ def live_topics(reader: BagReader, image_topic: str | None = None, info_topic: s
     return choose_topics(reader, image_topic, info_topic)
 
 
-def _start_node(compressed: bool, node_args: list[str] | None) -> subprocess.Popen:
+def _input_topic(image_type: str) -> str:
+    """The node's (relative) input topic for frames of ``image_type``, as the player publishes them under /live."""
+    return "image/compressed" if image_type.endswith("CompressedImage") else "image"
+
+
+def _start_node(image_type: str, node_args: list[str] | None) -> subprocess.Popen:
     """``nmnet_node`` in its own process, on the player's domain, its inputs remapped to ``/live/...``."""
     env = live_env()
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTDDS_BUILTIN_TRANSPORTS",
                                            "FASTDDS_DEFAULT_PROFILES_FILE")})  # the player's own participant
-    in_topic = "image/compressed" if compressed else "image"
-    args = ["--ros-args", "-r", f"__node:={NODE_NAME}", "-p", f"use_compressed:={str(compressed).lower()}",
+    in_topic = _input_topic(image_type)
+    args = ["--ros-args", "-r", f"__node:={NODE_NAME}", "-p", f"use_compressed:={str(in_topic != 'image').lower()}",
             "-r", f"{in_topic}:=/live/{in_topic}", "-r", "camera_info:=/live/camera_info", *(node_args or [])]
     return subprocess.Popen([sys.executable, "-m", "nmnet_ros.node", *args], env=env)
 
@@ -105,8 +110,8 @@ class _Player:
         self.answered: set[int] = set()  # stamps the node published matches for
         self.last_stamp: int | None = None  # the last frame published
         self.node = rclpy.create_node("nmnet_player")
-        in_topic = "image/compressed" if image_type.endswith("CompressedImage") else "image"
-        self.pub_img = self.node.create_publisher(_rclpy_type(image_type), f"/live/{in_topic}", qos_profile_sensor_data)
+        self.pub_img = self.node.create_publisher(_rclpy_type(image_type), f"/live/{_input_topic(image_type)}",
+                                                  qos_profile_sensor_data)
         self.pub_info = self.node.create_publisher(_rclpy_type("sensor_msgs/msg/CameraInfo"), "/live/camera_info",
                                                    qos_profile_sensor_data)
         for suffix, mtype in (("matches", "sensor_msgs/msg/PointCloud2"),
@@ -199,7 +204,7 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
 
     topics = topics or live_topics(reader)
     img_t, info_t = topics["image"], None if camera else topics["camera_info"]
-    node_proc = _start_node(reader.topics[img_t].endswith("CompressedImage"), node_args)
+    node_proc = _start_node(reader.topics[img_t], node_args)
     rclpy.init()
     ts = typestore()
 

@@ -147,21 +147,27 @@ def test_prepared_matches_are_used_only_against_the_features_they_were_made_with
 
 
 
+def turned_view(seq: Sequence, img: np.ndarray, deg: float, axis: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """(R, the image as the camera sees it turned by ``deg`` about ``axis`` without moving): warped by K R K^-1."""
+    import cv2
+
+    K = seq.camera.K
+    R = cv2.Rodrigues(np.radians(deg) * np.asarray(axis) / np.linalg.norm(axis))[0]
+    return R, cv2.warpPerspective(img, K @ R @ np.linalg.inv(K), img.shape[::-1], flags=cv2.INTER_LINEAR)
+
+
 @pytest.mark.parametrize("deg", [0.5, 5.0])
 def test_a_camera_that_turns_without_moving_gets_its_rotation(deg):
     """A camera turning on the spot (a robot turning in place, a pan head): a KITTI frame and the same frame turned by
     a pure rotation (warped by K R K^-1). The essential matrix is undefined without a baseline: MAGSAC++ failed at
     0.5 deg (the frame said "no estimate") and at 5 deg returned a translation direction drawn from noise. Now the
     flow the rotation explains is taken out first; no parallax is left, so the rotation alone is the estimate."""
-    import cv2
 
     from nmnet_ros.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
-    K, img = seq.camera.K, seq.image(30)
-    a = np.radians(deg) * np.array([0.3, 1.0, 0.2]) / np.linalg.norm([0.3, 1.0, 0.2])
-    R = cv2.Rodrigues(a)[0]
-    turned = cv2.warpPerspective(img, K @ R @ np.linalg.inv(K), img.shape[::-1], flags=cv2.INTER_LINEAR)
+    img = seq.image(30)
+    R, turned = turned_view(seq, img, deg, [0.3, 1.0, 0.2])
     fe = Frontend(seq.camera, {"max_keypoints": 1000})
     fe.process(img, 0.0)
     r = fe.process(turned, 0.1)
@@ -175,14 +181,12 @@ def test_the_parallax_bound_is_its_own_parameter():
     """static_parallax_px decides turning on the spot on its own, whatever static_flow_px: at 0 a frame turned by a
     pure 5-degree rotation goes to the essential matrix (its flow is far above static_flow_px); raised above a moving
     KITTI pair's parallax (a step of ~1 m; kitti-07's least parallax is 1.66 px) that pair is taken for a turn."""
-    import cv2
 
     from nmnet_ros.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
-    K, img = seq.camera.K, seq.image(30)
-    turned = cv2.warpPerspective(img, K @ cv2.Rodrigues(np.radians(5.0) * np.array([0.0, 1.0, 0.0]))[0] @ np.linalg.inv(K),
-                                 img.shape[::-1], flags=cv2.INTER_LINEAR)
+    img = seq.image(30)
+    _, turned = turned_view(seq, img, 5.0, [0.0, 1.0, 0.0])
     statuses = {}
     for bound, second in ((0.0, turned), (0.25, turned), (0.25, seq.image(31)), (1000.0, seq.image(31))):
         fe = Frontend(seq.camera, {"max_keypoints": 1000, "static_parallax_px": bound})
