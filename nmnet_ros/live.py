@@ -30,7 +30,7 @@ from .mcap_out import McapOutput
 from .params import NODE_NAME
 from .posemsg import estimate_of_message
 from .replay import PairScores, truth_missed
-from .tracks import track_summary
+from .tracks import TrackLengths
 
 # the ROS packages the live mode runs on: the player's (this module) and the node's (node.py, its own process);
 # test_core_no_ros checks that both modules import no other
@@ -257,26 +257,26 @@ def score_recording(path: Path, truth: Trajectory | None) -> dict:
 def recording_summary(path: Path, truth: Trajectory | None) -> tuple[dict, dict]:
     """A recording of the node's outputs, read once: its ``~/relative_pose`` stream scored against ``truth`` as the
     offline replay scores its results (:class:`~nmnet_ros.replay.PairScores`; "no estimate" is a failure), and the
-    feature tracks of its ``~/matches`` (:func:`~nmnet_ros.tracks.track_summary`).
+    feature tracks of its ``~/matches`` (:class:`~nmnet_ros.tracks.TrackLengths`, counted as they are read).
 
     Each pose message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the
     first, relative to the node's first frame, which has no message, is not scored.
     """
     pose_topic, matches_topic = f"/{NODE_NAME}/relative_pose", f"/{NODE_NAME}/matches"
-    poses, track_ids = [], []
+    estimates, stamps, tracks = [], [], TrackLengths()  # read as they come: a long recording is not held
     for m in BagReader(path).messages({pose_topic, matches_topic}):
         if m.topic == matches_topic:
-            track_ids.append(matches_of_cloud(m.msg.point_step, m.msg.fields, m.msg.data)["track_id"])
+            tracks.add(matches_of_cloud(m.msg.point_step, m.msg.fields, m.msg.data)["track_id"])
         else:
-            poses.append(m)
+            o, p = m.msg.pose.pose.orientation, m.msg.pose.pose.position
+            estimates.append(estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]),
+                                                 m.msg.pose.covariance))
+            stamps.append(m.log_time_ns / 1e9)
     scores = PairScores()
     if truth is not None:
-        msgs, stamps = [m.msg for m in poses], [m.log_time_ns / 1e9 for m in poses]
         if note := truth_missed(truth, stamps):
             print(f"warning: {note}", file=sys.stderr)
         gt = [None if np.isnan(T[0, 0]) else T for T in truth.poses_at(np.asarray(stamps))]  # each looked up once
-        for msg, stamp, T_prev, T_cur in zip(msgs[1:], stamps[1:], gt, gt[1:], strict=False):
-            o, p = msg.pose.pose.orientation, msg.pose.pose.position
-            scores.add(*estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]),
-                                            msg.pose.covariance), T_prev, T_cur, stamp)
-    return scores.summary(), track_summary(track_ids)
+        for (status, pose), stamp, T_prev, T_cur in zip(estimates[1:], stamps[1:], gt, gt[1:], strict=False):
+            scores.add(status, pose, T_prev, T_cur, stamp)
+    return scores.summary(), tracks.summary()

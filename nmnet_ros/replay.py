@@ -14,6 +14,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,7 @@ from .mcap_out import McapOutput
 from .model import load_model
 from .params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
 from .pipeline import RESTARTS, FrameResult, Frontend, stamp_order, stamp_warning
-from .tracks import track_summary
+from .tracks import TrackLengths
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
 STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
@@ -134,30 +135,50 @@ class Notes:
                 self.log(f"{kind}: {n} frames in all")
 
 
+@dataclass
+class Step:
+    """What a pass keeps of a frame: its counts and pose, not its matches (58 KB a frame at 2000 keypoints: an
+    hour-long bag's would fill the memory; they are in the output file)."""
+
+    stamp: float
+    status: str
+    matches: int
+    selected: int
+    R: np.ndarray | None  # the pose, x_cur = R x_prev + t, where the frame has one
+    t: np.ndarray | None
+
+
 class Run:
-    """Everything one pass over the frames collects."""
+    """Everything one pass over the frames collects, a few hundred bytes a frame."""
 
     def __init__(self, name: str) -> None:
         self.name = name
         self.warnings: dict[str, int] = {}  # per kind, as :class:`Notes` counted them
-        self.results: list[FrameResult] = []
+        self.steps: list[Step] = []
         self.scores = PairScores()
+        self.tracks = TrackLengths()
         self.gt: list[np.ndarray | None] = []
         self.seconds = 0.0
 
+    def add(self, r: FrameResult, T: np.ndarray | None) -> None:
+        """One more frame's result ``r``, with the ground truth's pose ``T`` at its stamp (None: none there)."""
+        self.scores.add(r.status, r.pose, self.gt[-1] if self.gt else None, T, r.stamp)
+        self.tracks.add(r.track_ids[r.mask])
+        self.steps.append(Step(r.stamp, r.status, len(r.k0), r.num_selected, *((r.pose.R, r.pose.t) if r.pose else (None, None))))
+        self.gt.append(T)
+
     def summary(self, frames: int, dropped: int = 0) -> dict:
         """The summary JSON: counts, rate, median errors, pose AUCs, selections per frame, statuses."""
-        matches = [len(r.k0) for r in self.results if r.status not in RESTARTS]
-        sel = [r.num_selected for r in self.results if r.status not in RESTARTS]
+        related = [s for s in self.steps if s.status not in RESTARTS]
         statuses: dict[str, int] = {}
-        for r in self.results:
-            statuses[r.status] = statuses.get(r.status, 0) + 1
+        for s in self.steps:
+            statuses[s.status] = statuses.get(s.status, 0) + 1
         return {
-            "frames": frames, "processed": len(self.results), "dropped": dropped,
-            "fps": len(self.results) / self.seconds if self.seconds else 0.0, **self.scores.summary(),
-            "matches_per_frame": float(np.mean(matches)) if matches else 0.0,
-            "selected_per_frame": float(np.mean(sel)) if sel else 0.0, "status": statuses, "warnings": dict(self.warnings),
-            "tracks": track_summary(r.track_ids[r.mask] for r in self.results),
+            "frames": frames, "processed": len(self.steps), "dropped": dropped,
+            "fps": len(self.steps) / self.seconds if self.seconds else 0.0, **self.scores.summary(),
+            "matches_per_frame": float(np.mean([s.matches for s in related])) if related else 0.0,
+            "selected_per_frame": float(np.mean([s.selected for s in related])) if related else 0.0,
+            "status": statuses, "warnings": dict(self.warnings), "tracks": self.tracks.summary(),
         }
 
 
@@ -178,7 +199,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded, window=window)
     run = Run(fe.config["selector"])
     notes = Notes(log)
-    n_frames, prev_gt, overlay, last_note, last_stamp = 0, None, None, None, None
+    n_frames, overlay, last_note, last_stamp = 0, None, None, None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -215,13 +236,9 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             if cam is None:
                 continue
             fe.camera = cam
-            T = None if truth is None else truth.at(f.stamp)
             r = fe.process(f.image, f.stamp)
-            run.results.append(r)
-            run.scores.add(r.status, r.pose, prev_gt, T, f.stamp)
-            run.gt.append(T)
-            prev_gt = T
-            if len(run.results) == 1:  # the stream's first frame: nothing to relate it to (see posemsg)
+            run.add(r, None if truth is None else truth.at(f.stamp))
+            if len(run.steps) == 1:  # the stream's first frame: nothing to relate it to (see posemsg)
                 continue
             want_overlay = overlay is None and r.status == "ok"
             dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if debug_images or want_overlay else None
@@ -237,7 +254,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
         notes.close()
     empty = f"no frame in --start/--duration's {window[0]:g} .. {window[1]:g} s: the bag ends before" \
         if window is not None and not n_frames else None
-    for w in [*reader.new_warnings(), truth_missed(truth, [r.stamp for r in run.results]), empty]:
+    for w in [*reader.new_warnings(), truth_missed(truth, [s.stamp for s in run.steps]), empty]:
         if w:
             log(f"warning: {w}")
     return run, n_frames, overlay
@@ -256,17 +273,17 @@ def truth_missed(truth: Trajectory | None, stamps: list[float]) -> str | None:
 def chain_trajectory(run: Run) -> tuple[np.ndarray, np.ndarray]:
     """Estimated and ground-truth camera positions; each estimated step scaled to the GT step length."""
     est, gt, T_est, T_gt_prev = [], [], None, None
-    for r, T in zip(run.results, run.gt, strict=True):
+    for s, T in zip(run.steps, run.gt, strict=True):
         if T is None:
             continue
         if T_est is None:
             T_est = T.copy()
         else:
             step = np.eye(4)
-            if r.pose is not None and r.status in ("ok", "no_motion"):  # no_motion: the rotation, t = 0
+            if s.R is not None and s.status in ("ok", "no_motion"):  # no_motion: the rotation, t = 0
                 scale = np.linalg.norm((np.linalg.inv(T_gt_prev) @ T)[:3, 3])
-                step[:3, :3] = r.pose.R.T  # T_prev_cur = inv([R | t])
-                step[:3, 3] = -r.pose.R.T @ r.pose.t * scale
+                step[:3, :3] = s.R.T  # T_prev_cur = inv([R | t])
+                step[:3, 3] = -s.R.T @ s.t * scale
             T_est = T_est @ step
         T_gt_prev = T
         est.append(T_est[:3, 3].copy())

@@ -48,16 +48,52 @@ def continue_tracks(prev_ids: np.ndarray, idx: np.ndarray, scores: np.ndarray, n
     return cur_ids, match_ids, next_id
 
 
+class TrackLengths:
+    """The lengths of the feature tracks of a stream of ``~/matches`` messages, counted as the messages come.
+
+    A track goes on only from one message to the next (ids are never reused), so only the last message's tracks
+    are held, and the finished ones are kept as a count per length: a replay of an hour-long bag holds a few
+    hundred ids, not every track it ever saw.
+    """
+
+    def __init__(self) -> None:
+        self._ids = np.zeros(0, np.int64)  # the last message's tracks
+        self._seen = np.zeros(0, np.int64)  # in how many messages each of them is so far
+        self._ended: dict[int, int] = {}  # messages a finished track is seen in -> how many tracks
+
+    def add(self, ids: np.ndarray) -> None:
+        """The next message's track ids (unique within a message, as the node's)."""
+        ids = np.asarray(ids, np.int64)
+        seen = np.ones(len(ids), np.int64)
+        _, i_prev, i_cur = np.intersect1d(self._ids, ids, assume_unique=True, return_indices=True)
+        seen[i_cur] += self._seen[i_prev]
+        ended = np.ones(len(self._ids), bool)
+        ended[i_prev] = False
+        self._count(self._seen[ended])
+        self._ids, self._seen = ids, seen
+
+    def _count(self, seen: np.ndarray) -> None:
+        for n, c in zip(*np.unique(seen, return_counts=True), strict=True):
+            self._ended[int(n)] = self._ended.get(int(n), 0) + int(c)
+
+    def summary(self) -> dict:
+        """``count``, ``mean_frames`` (the frames a track is seen in: its messages + 1), ``share_5_frames`` (percent
+        of tracks seen in 5 frames or more) and ``longest``, the tracks still going counted as they stand; zeros for
+        a stream without matches."""
+        hist = dict(self._ended)
+        for n, c in zip(*np.unique(self._seen, return_counts=True), strict=True):
+            hist[int(n)] = hist.get(int(n), 0) + int(c)
+        count = sum(hist.values())
+        if not count:
+            return {"count": 0, "mean_frames": 0.0, "share_5_frames": 0.0, "longest": 0}
+        return {"count": count, "mean_frames": sum((n + 1) * c for n, c in hist.items()) / count,
+                "share_5_frames": 100 * sum(c for n, c in hist.items() if n + 1 >= 5) / count,
+                "longest": max(hist) + 1}
+
+
 def track_summary(per_message: Iterable[np.ndarray]) -> dict:
-    """How long the tracks of a stream of ``~/matches`` messages are, given each message's track ids: ``count``,
-    ``mean_frames`` (the frames a track is seen in: its matches + 1), ``share_5_frames`` (percent of tracks seen in
-    5 frames or more) and ``longest``; zeros for a stream without matches."""
-    lengths: dict[int, int] = {}
+    """:meth:`TrackLengths.summary` of a stream of ``~/matches`` messages, given each message's track ids."""
+    lengths = TrackLengths()
     for ids in per_message:
-        for t in np.asarray(ids).tolist():
-            lengths[t] = lengths.get(t, 0) + 1
-    frames = np.fromiter(lengths.values(), np.int64, len(lengths)) + 1
-    if not len(frames):
-        return {"count": 0, "mean_frames": 0.0, "share_5_frames": 0.0, "longest": 0}
-    return {"count": len(frames), "mean_frames": float(frames.mean()), "share_5_frames": float(100 * np.mean(frames >= 5)),
-            "longest": int(frames.max())}
+        lengths.add(ids)
+    return lengths.summary()

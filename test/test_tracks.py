@@ -96,6 +96,31 @@ def test_a_streams_tracks_are_summed_up_by_length():
     assert track_summary([])["count"] == 0 and track_summary([np.zeros(0, np.int64)])["longest"] == 0
 
 
+def test_a_long_streams_tracks_are_counted_as_they_come_as_a_full_count_would():
+    """300 messages of tracks that go on, end and start at random: the running count (which holds only the last
+    message's tracks) says what counting every id of every message says."""
+    from nmnet_ros.tracks import TrackLengths
+
+    rng, messages, live, next_id = np.random.default_rng(3), [], np.zeros(0, np.int64), 0
+    for _ in range(300):
+        kept = live[rng.random(len(live)) < 0.7]
+        new = np.arange(next_id, next_id + rng.integers(0, 40))
+        next_id += len(new)
+        live = rng.permutation(np.concatenate([kept, new]))
+        messages.append(live)
+    seen: dict[int, int] = {}
+    for ids in messages:
+        for t in ids.tolist():
+            seen[t] = seen.get(t, 0) + 1
+    frames = np.array(list(seen.values())) + 1
+    lengths = TrackLengths()
+    for ids in messages:
+        lengths.add(ids)
+    assert lengths.summary() == pytest.approx({"count": len(frames), "mean_frames": frames.mean(),
+                                               "share_5_frames": 100 * np.mean(frames >= 5), "longest": frames.max()})
+    assert lengths.summary()["longest"] >= 10 and track_summary(messages) == lengths.summary()
+
+
 def test_the_readmes_back_end_snippet_collects_the_tracks_of_a_recording(tmp_path):
     """The README's "In a back end" code, run as written on the ~/matches of a replay's output file: one entry per
     track, each with the frames it is seen in (its first message brings two), as the replay's summary counts them."""
