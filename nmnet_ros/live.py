@@ -260,7 +260,7 @@ def recording_summary(path: Path, truth: Trajectory | None) -> tuple[dict, dict]
     feature tracks of its ``~/matches`` (:class:`~nmnet_ros.tracks.TrackLengths`, counted as they are read).
 
     Each pose message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the
-    first, relative to the node's first frame, which has no message, is not scored.
+    first (the node's first frame, or a recording that starts later) relates to no frame here and is not scored.
     """
     pose_topic, matches_topic = f"/{NODE_NAME}/relative_pose", f"/{NODE_NAME}/matches"
     estimates, stamps, tracks = [], [], TrackLengths()  # read as they come: a long recording is not held

@@ -424,8 +424,6 @@ class NMNetNode(Node):
     def _publish(self, header, img: np.ndarray, r: FrameResult) -> None:
         s = self.stats
         s.last_status, s.last_matches, s.last_selected, s.last_keypoints = r.status, len(r.k0), r.num_selected, r.num_keypoints
-        if s.processed == 1:  # the node's first frame: nothing to relate it to; every later one publishes (see posemsg)
-            return
         if r.status == "too_few_matches":
             self._warn("too_few_matches", f"only {r.num_selected} matches selected of {len(r.k0)} (need min_matches = "
                                              f"{self.frontend.config['min_matches']}): relative_pose says no estimate")

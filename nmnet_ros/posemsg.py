@@ -5,10 +5,11 @@ the previous camera's optical frame: T_prev_cur = inv([R | t]), translation a un
 (monocular: the scale is unknown) and a diagonal covariance that shrinks with the number of
 selected matches.
 
-Every processed frame but a stream's first gets one message, relative to the frame of the message
-before it. A frame without an estimate (too few matches, a failed pose, a restart of the chain: new
-frame size, time jump, new detector settings) gets the identity with NO_ESTIMATE_VAR on every axis:
-no information, so that a back end chaining the messages sees the gap instead of bridging it.
+Every processed frame gets one message, relative to the frame of the message before it, so a back end knows
+both frames of every pair from the messages alone. A frame without an estimate (a stream's first, too few
+matches, a failed pose, a restart of the chain: new frame size, time jump, new detector settings) gets the
+identity with NO_ESTIMATE_VAR on every axis: no information, so that a back end chaining the messages sees the
+gap instead of bridging it.
 """
 
 from __future__ import annotations

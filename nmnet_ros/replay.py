@@ -238,8 +238,6 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             fe.camera = cam
             r = fe.process(f.image, f.stamp)
             run.add(r, None if truth is None else truth.at(f.stamp))
-            if len(run.steps) == 1:  # the stream's first frame: nothing to relate it to (see posemsg)
-                continue
             want_overlay = overlay is None and r.status == "ok"
             dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if debug_images or want_overlay else None
             if want_overlay:
@@ -593,7 +591,7 @@ def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: d
     processed, dropped and why (the node's last /diagnostics; ``None`` where no report came), latency, the recording's
     ``scores`` and ``tracks``."""
     lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
-    processed = stats["results"] + 1 if stats["results"] else 0  # the first frame gives no result
+    processed = stats["results"]  # one ~/matches per processed frame
     diag = stats["diagnostics"]  # the node's last /diagnostics: why frames were dropped
     warnings = {k.removeprefix("warn_"): int(v) for k, v in diag.items() if k.startswith("warn_")}
     summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,

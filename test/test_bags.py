@@ -92,7 +92,7 @@ def test_round_trip_all_formats_same_frames_and_results(bags, tmp_path):
         assert r.returncode == 0, r.stderr
         results[fmt] = json.loads((tmp_path / f"{fmt}.json").read_text())
         counts = read_output(out)
-        assert counts["/nmnet_node/matches"] == counts["/nmnet_node/relative_pose"] == 3
+        assert counts["/nmnet_node/matches"] == counts["/nmnet_node/relative_pose"] == 4  # one each per frame
     for key in ("processed", "median_rot_deg", "median_trans_deg", "auc5"):
         assert results["mcap"][key] == pytest.approx(results["ros1"][key])
     assert results["mcap"]["median_rot_deg"] < 1.0
@@ -109,7 +109,7 @@ def test_truncated_mcap_reports_and_uses_readable_part(tmp_path):
     assert "truncated" in r.stdout
     s = json.loads((tmp_path / "s.json").read_text())
     assert 3 <= s["processed"] < 40
-    assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"] - 1
+    assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"]
 
 
 def test_a_damaged_bag_read_twice_is_reported_once(tmp_path):
@@ -158,7 +158,7 @@ def test_truncated_db3_reports_and_uses_readable_part(tmp_path):
     assert "truncated" in r.stdout + r.stderr
     s = json.loads((tmp_path / "s.json").read_text())
     assert 3 <= s["processed"] < 30
-    assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"] - 1
+    assert read_output(tmp_path / "o.mcap")["/nmnet_node/matches"] == s["processed"]
 
 
 def split_bag(tmp_path: Path, fmt: str, names: list[str], metadata: bool = True) -> Path:
@@ -414,7 +414,7 @@ def test_live_replay_agrees_with_offline(tmp_path):
     assert s_live["frames"] == s_off["frames"] == 40 and s_live["parameters"] == s_off["parameters"]
     assert s_live["processed"] + s_live["dropped"] == 40 and s_live["processed"] >= 5
     counts = read_output(tmp_path / "live.mcap")
-    assert counts["/nmnet_node/matches"] == counts["/nmnet_node/relative_pose"] == s_live["processed"] - 1
+    assert counts["/nmnet_node/matches"] == counts["/nmnet_node/relative_pose"] == s_live["processed"]
     assert s_live["median_rot_deg"] < 1.0 and abs(s_live["median_rot_deg"] - s_off["median_rot_deg"]) < 0.5
     # feature tracks, from the recorded ~/matches (live) and from the results (offline): the same when no frame dropped
     assert s_off["tracks"]["count"] > 1000 and 2.0 < s_off["tracks"]["mean_frames"] and s_off["tracks"]["longest"] >= 10
@@ -438,7 +438,7 @@ def test_live_replay_delivers_raw_frames_over_half_a_megabyte(tmp_path):
     s = json.loads((tmp_path / "live.json").read_text())
     print(s)
     assert s["frames"] == 6 and s["processed"] == 6, s
-    assert read_output(tmp_path / "live.mcap")["/nmnet_node/matches"] == 5
+    assert read_output(tmp_path / "live.mcap")["/nmnet_node/matches"] == 6
 
 
 
@@ -457,7 +457,7 @@ def test_a_standing_camera_is_scored_on_its_rotation(tmp_path):
     assert s["still_pairs"] == 20 and s["median_still_rot_deg"] < 0.02, s  # measured 0.007; the identity's 0.02
     assert "without motion in the ground truth (20 pairs: standing, or turning on the spot): median rotation error" in r.stdout
     live = score_recording(tmp_path / "o.mcap", bag_ground_truth(BagReader(bag), "/ground_truth/pose"))
-    assert live["still_pairs"] == 19 and live["median_still_rot_deg"] < 0.02, live  # the first message is not scored live
+    assert live["still_pairs"] == 20 and live["median_still_rot_deg"] < 0.02, live  # every pair, as offline
 
 def test_a_summary_without_scored_pairs_is_strict_json():
     from nmnet_ros.replay import summary_json
@@ -477,7 +477,7 @@ def test_a_live_summary_says_why_frames_dropped_and_what_it_cannot_know_without_
     from nmnet_ros.replay import error_summary, live_summary, summary_json
     from nmnet_ros.tracks import track_summary
 
-    stats = {"published": 10, "results": 6, "latency_ms": [40.0, 60.0], "diagnostics": {}}
+    stats = {"published": 10, "results": 7, "latency_ms": [40.0, 60.0], "diagnostics": {}}
     s = live_summary(stats, 2.0, error_summary([]), track_summary([]), {"k": 8})
     out = capsys.readouterr().out
     assert (s["processed"], s["dropped"], s["received"], s["dropped_busy"]) == (7, 3, None, None), s
@@ -563,7 +563,7 @@ def test_a_replay_keeps_no_frames_matches_and_sums_up_the_tracks_it_wrote(raw_ba
                for m in BagReader(tmp_path / "o.mcap").messages({"/nmnet_node/matches"})]
     s = run.summary(n)
     print(len(pickle.dumps(run)) / n, "bytes a frame", s["tracks"])
-    assert n == 6 and s["processed"] == 6 and s["selected_per_frame"] > 100 and len(written) == 5
+    assert n == 6 and s["processed"] == 6 and s["selected_per_frame"] > 100 and len(written) == 6
     assert s["tracks"] == track_summary(written) and s["tracks"]["longest"] >= 4
     assert len(pickle.dumps(run)) < 5000 * n
 
@@ -631,7 +631,7 @@ def test_a_driver_that_never_stamps_is_named_a_few_times_then_counted(raw_bag, t
         r, s = replay_json(tmp_path / "unstamped", tmp_path, "--stamp-source", "arrival", *mode, name="recorded")
         assert r.returncode == 0 and "duplicate_stamp" not in r.stdout + r.stderr, (mode, r.stdout, r.stderr)
         if mode:  # the node as its own process: every frame processed, the pairs --live scores, a good pose
-            assert s["processed"] == 6 and s["scored_pairs"] == 4 and s["median_rot_deg"] < 0.5, s  # as --live scores
+            assert s["processed"] == 6 and s["scored_pairs"] == 5 and s["median_rot_deg"] < 0.5, s
         else:
             assert [s[k] for k in keys] == pytest.approx([exact[k] for k in keys]), (s, exact)
 
@@ -645,9 +645,9 @@ def test_start_and_duration_replay_a_part_of_the_bag(raw_bag, tmp_path):
     for mode in ([], ["--live", "--rate", "0.5"]):
         r, s = replay_json(raw_bag, tmp_path, "--start", "0.15", "--duration", "0.3", *mode, name="part")
         assert r.returncode == 0, r.stderr
-        assert s["frames"] == 3 and s["processed"] == 3 and s["scored_pairs"] == (1 if mode else 2), (mode, s)
+        assert s["frames"] == 3 and s["processed"] == 3 and s["scored_pairs"] == 2, (mode, s)
         offline_or_live = read_output(tmp_path / "part.mcap")
-        assert offline_or_live["/nmnet_node/relative_pose"] == 2, offline_or_live
+        assert offline_or_live["/nmnet_node/relative_pose"] == 3, offline_or_live
     r, s = replay_json(raw_bag, tmp_path, "--start", "10", name="late")
     assert r.returncode == 0 and s["frames"] == 0, s
     assert "warning: no frame in --start/--duration's 10 .. inf s: the bag ends before" in r.stdout, r.stdout
@@ -673,7 +673,7 @@ def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag
     assert out.count("(out_of_order_stamp): skipped (as the node does)") == 1, out
     assert s["frames"] == 6 and s["processed"] == 4 and s["median_trans_deg"] < 2.0, s
     assert s["warnings"] == {"duplicate_stamp": 1, "out_of_order_stamp": 1}, s
-    assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3  # one per processed frame after the first
+    assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 4  # one per processed frame
 
 
 def test_replay_restarts_the_chain_at_a_frame_stamped_far_back_as_the_node_does(raw_bag, tmp_path):
@@ -690,7 +690,8 @@ def test_replay_restarts_the_chain_at_a_frame_stamped_far_back_as_the_node_does(
     for m in BagReader(tmp_path / "o.mcap").messages({"/nmnet_node/relative_pose"}):
         o, t = m.msg.pose.pose.orientation, m.msg.pose.pose.position
         status.append(estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([t.x, t.y, t.z]), m.msg.pose.covariance)[0])
-    assert status == ["ok", "ok", "ok", "no_estimate", "ok"], status  # the restart says "no estimate", then relates again
+    # the first frame and the restart say "no estimate"; the frame after the restart relates again
+    assert status == ["no_estimate", "ok", "ok", "ok", "no_estimate", "ok"], status
 
 
 def test_replay_skips_frames_stamped_before_zero_and_still_writes_its_file(raw_bag, tmp_path):
@@ -702,13 +703,13 @@ def test_replay_skips_frames_stamped_before_zero_and_still_writes_its_file(raw_b
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
     assert (r.stdout + r.stderr).count("is negative: skipped (ROS time starts at 0") == 2, r.stdout + r.stderr
     assert s["frames"] == 6 and s["processed"] == 4 and s["warnings"] == {"negative_stamp": 2}, s
-    assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 3
+    assert read_output(tmp_path / "o.mcap")["/nmnet_node/relative_pose"] == 4  # one per processed frame
     # live, the node skips them and its /diagnostics count reaches the summary: the 2 "dropped" are explained
     r, s = replay_json(bag, tmp_path, "--live", "--rate", "0.5", name="live")
     assert r.returncode == 0 and "the node's warnings (its /diagnostics): negative_stamp 2" in r.stdout, r.stdout + r.stderr
     assert s["processed"] == 4 and s["dropped"] == 2 and s["warnings"]["negative_stamp"] == 2, s
     assert s["received"] == 6 and s["dropped_busy"] == 0, s  # neither lost on the way nor replaced while busy
-    assert read_output(tmp_path / "live.mcap")["/nmnet_node/relative_pose"] == 3
+    assert read_output(tmp_path / "live.mcap")["/nmnet_node/relative_pose"] == 4
 
 
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
@@ -738,7 +739,7 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     own = bag_ground_truth(BagReader(raw_bag), "/ground_truth/pose")
     tf = tf_ground_truth(BagReader(raw_bag), "/tf", "world", "camera_gt")
     live_scoring = [score_recording(tmp_path / "bag.mcap", gt) for gt in (own, read_tum(tum), tf)]
-    assert live_scoring[0]["scored_pairs"] == 4 and live_scoring[1] == pytest.approx(live_scoring[0])  # as --live scores
+    assert live_scoring[0]["scored_pairs"] == 5 and live_scoring[1] == pytest.approx(live_scoring[0])  # as --live scores
     assert live_scoring[2] == pytest.approx(live_scoring[0])
     unscored = score_recording(tmp_path / "bag.mcap", None)  # no ground truth: nothing scored
     assert unscored["scored_pairs"] == 0 and unscored["median_rot_deg"] is None and np.isnan(unscored["auc5"])
@@ -748,7 +749,7 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     assert score_recording(tmp_path / "bag.mcap", read_tum(shifted)) != pytest.approx(live_scoring[0])
     gap = tmp_path / "gap.txt"  # no pose for frame 62: its two pairs are not scored (not against frame 61's pose)
     gap.write_text("".join(" ".join(r) + "\n" for r in rows[55:62] + rows[63:70]))
-    assert score_recording(tmp_path / "bag.mcap", read_tum(gap))["scored_pairs"] == 2
+    assert score_recording(tmp_path / "bag.mcap", read_tum(gap))["scored_pairs"] == 3
     bad = tmp_path / "bad.txt"
     bad.write_text("0.0 1 2 3\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--gt", str(bad), "--no-progress")
@@ -799,7 +800,7 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
     assert 0.02 < np.abs(at_frames[0, :3, 3] - seq.poses[60, :3, 3]).max() < 0.04  # before the stream: the nearest pose
     exact_truth = bag_ground_truth(BagReader(raw_bag), "/ground_truth/pose")
     live_like = score_recording(tmp_path / "exact.mcap", truth)  # as --live scores
-    assert live_like["scored_pairs"] == 4
+    assert live_like["scored_pairs"] == 5
     assert abs(live_like["median_trans_deg"] - score_recording(tmp_path / "exact.mcap", exact_truth)["median_trans_deg"]) < 0.02
     capsys.readouterr()
     rows = [ln.split() for ln in (data_dir("kitti-07") / "groundtruth.txt").read_text().splitlines() if ln[0] != "#"]
@@ -1300,10 +1301,13 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     assert s["selector"] == "ratio+magsac" and s["parameters"]["pose_estimator"] == "classic"  # the node's name for it
     from rosbags.highlevel import AnyReader
 
+    from nmnet_ros.posemsg import NO_ESTIMATE_VAR
+
     with AnyReader([tmp_path / "b.mcap"]) as reader:  # the recorded covariance has the file's rotation sigma
         covs = [reader.deserialize(raw, c.msgtype).pose.covariance.reshape(6, 6) for c, _, raw in reader.messages()
                 if c.topic.endswith("relative_pose")]
-    assert len(covs) == 5 and all(np.isclose(c[3, 3] / c[0, 0], np.radians(0.05) ** 2 / 0.05**2) for c in covs)
+    assert len(covs) == 6 and covs[0][0, 0] == NO_ESTIMATE_VAR  # the first frame: no estimate
+    assert all(np.isclose(c[3, 3] / c[0, 0], np.radians(0.05) ** 2 / 0.05**2) for c in covs[1:])
     params.write_text("/**:\n  ros__parameters:\n    pose_threshold_px: 0.0\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "c.mcap"), "--params-file", str(params))
     assert r.returncode == 2 and f"{params}: pose_threshold_px: 0.0 is out of range 0.05 .. 10.0" in r.stderr, r.stderr

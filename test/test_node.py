@@ -71,8 +71,11 @@ class Peer:
         Two things can legitimately cost the first frame: the image overtaking the camera_info (they are
         separate topics, so the node skips it and warns ``no_camera_info``), and a best-effort message lost
         right after discovery. Both are retried (same message; nothing was processed, so the node's state is
-        unchanged); a frame the node did receive and is working on is waited for, never sent twice.
+        unchanged); a frame the node did receive and is working on is waited for, never sent twice. Its outputs are
+        waited for too: a first frame relates to nothing, so its ~/relative_pose says "no estimate" and its
+        ~/matches is empty, and a back end has the stamp of every pair's previous frame from the messages before.
         """
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         for _ in range(tries):
             self.pub_info.publish(info)
             spin_until(self.node, lambda: False, 0.3)
@@ -80,11 +83,12 @@ class Peer:
             self.pub_img.publish(msg)
             spin_until(self.node, lambda s=skipped: self.count("frames_processed") >= 1 or self.count("warn_no_camera_info") > s,
                        4.0)
-            if self.count("frames_processed") >= 1:
-                return
-            if self.count("warn_no_camera_info") > skipped or self.count("frames_received") <= received:
-                continue  # skipped before camera_info arrived, or lost: send again
-            assert self.wait_processed(1, timeout), "the node received the first frame but never processed it"
+            if self.count("frames_processed") < 1:
+                if self.count("warn_no_camera_info") > skipped or self.count("frames_received") <= received:
+                    continue  # skipped before camera_info arrived, or lost: send again
+                assert self.wait_processed(1, timeout), "the node received the first frame but never processed it"
+            assert no_estimate(self.pose_for(stamp)), "the first frame's relative_pose is not 'no estimate'"
+            assert self.wait_result_for(stamp) and self.matches[0][1].width == 0, "the first frame has matches"
             return
         raise AssertionError(f"the first frame was not processed after {tries} tries (camera_info + image)")
 
@@ -162,10 +166,10 @@ def send_lockstep(peer: Peer, seq: Sequence, frames, make_msg, info) -> None:
 
 
 def check_kitti_run(peer: Peer, seq: Sequence, frames, network: bool = True) -> np.ndarray:
-    spin_until(peer.node, lambda: len(peer.poses) >= len(frames) - 1, 5.0)  # the pose follows the matches
-    assert len(peer.matches) == len(frames) - 1 and len(peer.poses) == len(frames) - 1
+    spin_until(peer.node, lambda: len(peer.poses) >= len(frames), 5.0)  # the pose follows the matches
+    assert len(peer.matches) == len(frames) and len(peer.poses) == len(frames)  # one each per frame, the first's empty
     errs = []
-    for (_, pose), i in zip(peer.poses, frames[1:], strict=True):
+    for (_, pose), i in zip(peer.poses[1:], frames[1:], strict=True):
         o = pose.pose.pose.orientation
         R_pc = quat_to_rot([o.x, o.y, o.z, o.w])
         R_gt, _ = seq.relative_pose(i - 1, i)
@@ -643,9 +647,9 @@ def test_a_driver_that_does_not_stamp_is_stamped_on_arrival(ros, tmp_path):
         for n, i in enumerate((62, 63), 1):
             peer.pub_info.publish(kitti_info(seq))
             peer.pub_img.publish(image_msg(seq.image(i), 0.0))
-            assert spin_until(peer.node, lambda n=n: len(peer.matches) >= n and len(peer.poses) >= n, 30.0), i
-        stamps = peer.stamps(peer.matches)
-        assert before < stamps[0] < stamps[1] < time.time() and peer.stamps(peer.poses) == stamps, stamps
+            assert spin_until(peer.node, lambda n=n: len(peer.matches) > n and len(peer.poses) > n, 30.0), i
+        stamps = peer.stamps(peer.matches)[1:]  # after the first frame's, at 1.0 s
+        assert before < stamps[0] < stamps[1] < time.time() and peer.stamps(peer.poses)[1:] == stamps, stamps
         assert len(published_matches(peer, stamps[1])) > 50 and not no_estimate(peer.pose_for(stamps[1]))
         assert peer.count("warn_out_of_order_stamp") == 1 and peer.count("warn_duplicate_stamp") == 0
     assert "If not, stamp_source:=arrival stamps them on arrival" in node.output()

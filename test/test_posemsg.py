@@ -1,4 +1,4 @@
-"""The relative-pose messages: one per frame after the first, "no estimate" where the front end has none."""
+"""The relative-pose messages: one per processed frame, "no estimate" where the front end has none (a first frame too)."""
 
 import cv2
 import numpy as np

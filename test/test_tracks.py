@@ -123,7 +123,8 @@ def test_a_long_streams_tracks_are_counted_as_they_come_as_a_full_count_would():
 
 def test_the_readmes_back_end_snippet_collects_the_tracks_of_a_recording(tmp_path):
     """The README's "In a back end" code, run as written on the ~/matches of a replay's output file: one entry per
-    track, each with the frames it is seen in (its first message brings two), as the replay's summary counts them."""
+    track, each with the frames it is seen in (its first message brings two), as the replay's summary counts them,
+    every observation stamped (the first frame's message, empty, gives the stamp the next message relates to)."""
     import re
 
     from nmnet_ros.bags import BagReader
@@ -135,11 +136,10 @@ def test_the_readmes_back_end_snippet_collects_the_tracks_of_a_recording(tmp_pat
     block = re.search(r"\*\*In a back end\*\*.*?```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
     seq = Sequence.load(data_dir("kitti-07"))
     fe, out, ids = Frontend(seq.camera, {}), McapOutput(tmp_path / "out.mcap"), []
-    for i in range(8):
+    for i in range(8):  # as the node and the replay: a message for every frame, the first's empty
         r = fe.process(seq.image(i), float(i))
-        if i:  # as the node and the replay: nothing for the first frame
-            out.write_result(r, 1.0 + i)
-            ids.append(r.track_ids[r.mask])
+        out.write_result(r, 1.0 + i)
+        ids.append(r.track_ids[r.mask])
     out.close()
     scope: dict = {}
     exec(block, scope)  # noqa: S102 - the README's own code
@@ -149,7 +149,7 @@ def test_the_readmes_back_end_snippet_collects_the_tracks_of_a_recording(tmp_pat
     seen = scope["observations"]
     expected = track_summary(ids)
     assert len(seen) == expected["count"] and max(len(v) for v in seen.values()) == expected["longest"]
-    for track in seen.values():  # one observation a frame, frame after frame; the first of the first message unstamped
-        stamps = [None if s is None else s.sec + 1e-9 * s.nanosec for s, _, _ in track]
-        start = 1.0 if stamps[0] is None else stamps[0]
-        assert stamps[1:] == [start + k for k in range(1, len(track))] and (stamps[0] is not None or stamps[1] == 2.0)
+    assert len(messages) == 8 and messages[0].width == 0
+    for track in seen.values():  # one observation a frame, frame after frame, each stamped
+        stamps = [s.sec + 1e-9 * s.nanosec for s, _, _ in track]
+        assert stamps == [stamps[0] + k for k in range(len(track))] and stamps[0] >= 1.0
