@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bags import BagError, BagReader, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
+from .bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
@@ -182,12 +182,49 @@ class Run:
         }
 
 
+class _Gate:
+    """The node's checks before a frame enters the front end, offline: a readable image, a calibration, a stamp
+    that goes forward, a calibration that fits the frame's size. Each refusal is counted in ``notes`` by the node's
+    warning kind; ``camera``, when given, replaces the bag's camera_info."""
+
+    def __init__(self, notes: Notes, camera: Camera | None, time_jump_s: float) -> None:
+        self.notes, self.camera, self.time_jump_s = notes, camera, time_jump_s
+        self.last_stamp: float | None = None
+        self.last_note: str | None = None
+
+    def camera_for(self, f: Frame) -> Camera | None:
+        """The camera to process frame ``f`` with; None: skip it (said, or counted, in ``notes``)."""
+        if f.image is None:
+            self.notes("bad_image", f"frame at {f.stamp:.3f}: skipped, {f.error}")
+            return None
+        calibration = self.camera or f.camera
+        if calibration is None:
+            if f.camera_error:
+                self.notes("bad_camera_info", f"frame at {f.stamp:.3f}: skipped, camera_info refused: {f.camera_error}")
+            else:
+                self.notes("no_camera_info", f"frame at {f.stamp:.3f}: skipped, no camera_info yet (give the calibration "
+                                             "with --camera)")
+            return None
+        order = stamp_order(self.last_stamp, f.stamp, self.time_jump_s)
+        if order is not None:
+            self.notes(order, stamp_warning(order, self.last_stamp, f.stamp, "--stamp-source arrival") + " (as the node does)")
+            if order != "time_jump":  # a jump back restarts the chain from this frame; the others are skipped
+                return None
+        self.last_stamp = f.stamp
+        cam, note = fit_camera(calibration, (f.image.shape[1], f.image.shape[0]))
+        if note:  # said when it changes: a scaled K holds for every frame of the stream
+            self.notes("camera_size_mismatch", f"frame at {f.stamp:.3f}: {note}" if note != self.last_note else None)
+            self.last_note = note
+        return cam
+
+
 def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: Trajectory | None = None,
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
                 log: Callable[[str], None] = print, camera: Camera | None = None,
                 rectified: bool = False, recorded: bool = False,
-                window: tuple[float, float] | None = None) -> tuple[Run, int, list[np.ndarray | None]]:
-    """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the last good image.
+                window: tuple[float, float] | None = None) -> tuple[Run, int, np.ndarray | None]:
+    """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the match overlay of the
+    first frame with a pose (None when none has one).
 
     ``reader``: the bag, opened once (opening lists its topics) and read again for each pass.
 
@@ -199,7 +236,8 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded, window=window)
     run = Run(fe.config["selector"])
     notes = Notes(log)
-    n_frames, overlay, last_note, last_stamp = 0, None, None, None
+    gate = _Gate(notes, camera, fe.config["time_jump_s"])
+    n_frames, overlay = 0, None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -212,28 +250,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             n_frames += 1
             if bar is not None:
                 bar.update(1)
-            if f.image is None:
-                notes("bad_image", f"frame at {f.stamp:.3f}: skipped, {f.error}")
-                continue
-            calibration = camera or f.camera
-            if calibration is None:
-                if f.camera_error:
-                    notes("bad_camera_info", f"frame at {f.stamp:.3f}: skipped, camera_info refused: {f.camera_error}")
-                else:
-                    notes("no_camera_info", f"frame at {f.stamp:.3f}: skipped, no camera_info yet (give the calibration "
-                                            "with --camera)")
-                continue
-            order = stamp_order(last_stamp, f.stamp, fe.config["time_jump_s"])
-            if order is not None:
-                notes(order, stamp_warning(order, last_stamp, f.stamp, "--stamp-source arrival") + " (as the node does)")
-                if order != "time_jump":
-                    continue
-            last_stamp = f.stamp
-            cam, note = fit_camera(calibration, (f.image.shape[1], f.image.shape[0]))
-            if note:  # said when it changes: a scaled K holds for every frame of the stream
-                notes("camera_size_mismatch", f"frame at {f.stamp:.3f}: {note}" if note != last_note else None)
-                last_note = note
-            if cam is None:
+            if (cam := gate.camera_for(f)) is None:
                 continue
             fe.camera = cam
             r = fe.process(f.image, f.stamp)
