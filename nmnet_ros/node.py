@@ -107,6 +107,8 @@ class Stats:
     last_matches: int = 0
     last_keypoints: int = 0
     last_selected: int = 0
+    last_continued: int = 0  # the last frame's selected matches that continue a track of the frame before
+    last_track_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     last_status: str = "waiting"
     t_start: float = field(default_factory=time.monotonic)
 
@@ -433,6 +435,8 @@ class NMNetNode(Node):
         elif r.status == "pose_failed":
             self._warn("pose_failed", "pose estimation failed on the selected matches")
         sel = r.mask
+        ids = r.track_ids[sel]
+        s.last_continued, s.last_track_ids = int(np.isin(ids, s.last_track_ids).sum()), ids
         cloud = PointCloud2(header=header)
         f = matches_to_cloud_fields(r.k0[sel], r.k1[sel], r.scores[sel], r.track_ids[sel])
         cloud.height, cloud.width, cloud.point_step, cloud.row_step = f["height"], f["width"], f["point_step"], f["row_step"]
@@ -464,7 +468,8 @@ class NMNetNode(Node):
             "poses_estimated": s.estimated, "chain_resets": s.resets, "rate_hz": round(s.processed / elapsed, 3),
             "latency_p50_ms": round(float(np.percentile(lat, 50)), 1), "latency_p90_ms": round(float(np.percentile(lat, 90)), 1),
             "input_qos": "reliable" if self.image_reliable else "best_effort",
-            "keypoints": s.last_keypoints, "matches": s.last_matches, "selected": s.last_selected, "last_status": s.last_status,
+            "keypoints": s.last_keypoints, "matches": s.last_matches, "selected": s.last_selected,
+            "tracks_continued": s.last_continued, "last_status": s.last_status,
             **{f"stage_{k}_ms": round(float(np.median(v)), 1) for k, v in dict(s.stage_ms).items()},
             **{f"warn_{k}": v for k, v in dict(s.warnings).items()},  # a copy: the worker threads add kinds
         }

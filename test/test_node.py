@@ -185,6 +185,9 @@ def check_kitti_run(peer: Peer, seq: Sequence, frames, network: bool = True) -> 
     went_on = [(ids_at[u, v], t) for u, v, t in zip(now["u0"], now["v0"], now["track_id"], strict=True) if (u, v) in ids_at]
     print(f"tracks: {len(went_on)} of {m.width} matches continue one of the {len(ids_at)} before")
     assert len(went_on) > 0.3 * m.width and all(a == b for a, b in went_on) and len(set(now["track_id"])) == m.width
+    # /diagnostics says how many of the last frame's matches continue a track, for a monitor to see tracking break down
+    assert spin_until(peer.node, lambda: peer.count("frames_processed") == len(frames) and
+                      peer.count("tracks_continued") == len(went_on), 5.0), (peer.diag_values(), len(went_on))
     if network:
         assert scores.min() > 0.5 and scores.max() <= 1.0 and len(np.unique(scores)) > 1  # NM-Net probabilities, not a 0/1 mask
     else:
@@ -209,7 +212,8 @@ COMPRESSED = (["-p", "use_compressed:=true", "-p", "pose_estimator:=classic"], {
 
 @pytest.mark.parametrize("node_args, peer_args, make_msg, frames, stop_signal", [RAW, COMPRESSED], ids=["raw-remapped", "compressed"])
 def test_twenty_kitti_frames(ros, tmp_path, node_args, peer_args, make_msg, frames, stop_signal):
-    """20 frames + CameraInfo -> 19 matches and 19 poses, rotation error < 2 deg on >= 90 %; clean shutdown."""
+    """20 frames + CameraInfo -> 20 matches and 20 poses (the first empty), rotation error < 2 deg on >= 90 %; clean
+    shutdown."""
     seq = Sequence.load(data_dir("kitti-07"))
     with node_and_peer(ros, tmp_path, ["--ros-args", *node_args], stop_signal, **peer_args) as (node, peer):
         peer.wait_connected()
