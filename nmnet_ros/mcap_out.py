@@ -66,8 +66,8 @@ class McapOutput:
 
     def write_result(self, result: FrameResult, stamp: float, frame_id: str = "camera", debug: np.ndarray | None = None,
                      prefix: str = "/nmnet_node") -> None:
-        """A FrameResult as ``{prefix}/matches`` (PointCloud2) and ``{prefix}/relative_pose`` (for every frame but
-        the stream's first, see :mod:`nmnet_ros.posemsg`)."""
+        """A FrameResult as ``{prefix}/matches`` (PointCloud2) and ``{prefix}/relative_pose`` (a stream's first frame:
+        no matches, "no estimate"; see :mod:`nmnet_ros.posemsg`)."""
         T = self.ts.types
         t_ns = int(round(stamp * 1e9))
         hdr = self._header(stamp, frame_id)
