@@ -78,7 +78,7 @@ class McapOutput:
                                                  point_step=f["point_step"], row_step=f["row_step"],
                                                  data=np.frombuffer(f["data"], np.uint8), is_dense=True)
         self.write(f"{prefix}/matches", "sensor_msgs/msg/PointCloud2", cloud, t_ns)
-        q, tr, cov = relative_pose_of_current(result.status, result.pose, result.num_selected, self.pose_sigmas)
+        q, tr, cov = relative_pose_of_current(result.status, result.pose, result.pose_matches, self.pose_sigmas)
         pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=tr[0], y=tr[1], z=tr[2]),
                                            orientation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
         msg = T["geometry_msgs/msg/PoseWithCovarianceStamped"](

@@ -445,7 +445,7 @@ class NMNetNode(Node):
         cloud.data = f["data"]
         self.pub_matches.publish(cloud)
         pose_msg = PoseWithCovarianceStamped(header=header)
-        q, t, cov = relative_pose_of_current(r.status, r.pose, r.num_selected, pose_sigmas(self.params))
+        q, t, cov = relative_pose_of_current(r.status, r.pose, r.pose_matches, pose_sigmas(self.params))
         pose_msg.pose.pose.position.x, pose_msg.pose.pose.position.y, pose_msg.pose.pose.position.z = (float(v) for v in t)
         o = pose_msg.pose.pose.orientation
         o.x, o.y, o.z, o.w = (float(v) for v in q)

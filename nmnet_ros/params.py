@@ -45,6 +45,10 @@ PARAMS: dict[str, tuple] = {
     "static_parallax_px": (0.25, "median parallax of the selected matches (px; the flow the rotation fitted alone does "
                                  "not explain) below which the camera counts as turning on the spot: no_motion, the "
                                  "rotation alone with zero translation", (0.0, 1000.0)),
+    "matches_within_px": (0.0, "0: ~/matches carries the matches the pose rests on (MAGSAC++'s inliers at "
+                              "pose_threshold_px); > 0: every match MAGSAC++ was given that lies within this Sampson "
+                              "distance (px) of the final pose, for a back end that wants more matches and longer tracks "
+                              "(0.5: 1.5x the matches)", (0.0, 100.0)),
     "time_jump_s": (1.0, "a frame stamped this many seconds before the previous one restarts the chain (bag loop, "
                          "clock reset)", (0.0, 86400.0)),
     "pose_sigma_rotation_deg": (ROT_SIGMA_DEG, "published rotation sigma per axis (degrees) at 200 selected matches, "
@@ -85,6 +89,7 @@ def frontend_config(p: dict) -> dict:
         "threshold_px": p["pose_threshold_px"], "refine_iterations": p["pose_refine_iterations"],
         "precision": p["nmnet_precision"], "min_matches": p["min_matches"], "static_flow_px": p["static_flow_px"],
         "static_parallax_px": p["static_parallax_px"], "time_jump_s": p["time_jump_s"],
+        "matches_within_px": p["matches_within_px"],
     }
 
 

@@ -23,7 +23,7 @@ from .bf16 import PRECISIONS
 from .detectors import DEFAULT_DETECTOR, make_detector
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Detector, Features
-from .geometry import Camera, PoseEstimate, fit_rotation, scale_pixels
+from .geometry import Camera, PoseEstimate, essential_from_pose, fit_rotation, sampson_distance, scale_pixels
 from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
@@ -48,6 +48,7 @@ DEFAULT_CONFIG: dict = {
     "static_flow_px": 1.0,  # median flow of the selected matches below this (pixels): the camera stands, no baseline
     "static_parallax_px": 0.25,  # median flow the rotation fitted alone leaves below this: turning on the spot, no baseline
     "time_jump_s": 1.0,  # a frame this much older than the previous one starts a new chain (bag loop, clock reset)
+    "matches_within_px": 0.0,  # > 0: publish every match the pose was fitted on within this Sampson distance (px)
     "match_stage": "auto",  # where matching runs: auto (the stage split with the shorter slower stage), first, second
 }
 
@@ -143,6 +144,7 @@ class FrameResult:
     pose: PoseEstimate | None = None
     timings_ms: dict[str, float] = field(default_factory=dict)
     num_keypoints: int = 0
+    pose_matches: int = 0  # the matches the pose rests on (the robust fit's inliers): the published covariance's n
 
     @property
     def num_selected(self) -> int:
@@ -298,11 +300,19 @@ class Frontend:
         sel = self.select(corr)
         timings["select+pose"] = 1000 * (time.perf_counter() - t)
         self._note_cost("rest", timings["select+pose"])
-        base["scores"] = sel.scores.astype(np.float32) if sel.scores is not None else sel.mask.astype(np.float32)
-        base["mask"] = sel.mask
-        base["track_ids"] = self._continue_tracks(prev[1], p, m.idx, sel.mask, base["scores"])
-        if sel.mask.sum() < c["min_matches"]:
-            return FrameResult(stamp, "too_few_matches", **base)
+        status, pose = self._status(sel, corr, k0, k1, cam.focal)
+        mask = self._published(sel, corr) if status == "ok" else sel.mask
+        base["scores"] = sel.scores.astype(np.float32) if sel.scores is not None else mask.astype(np.float32)
+        base["mask"] = mask
+        base["pose_matches"] = int(sel.mask.sum())
+        base["track_ids"] = self._continue_tracks(prev[1], p, m.idx, mask, base["scores"])
+        return FrameResult(stamp, status, pose=pose, **base)
+
+    def _status(self, sel: Selection, corr: Correspondences, k0: np.ndarray, k1: np.ndarray, focal: float
+                ) -> tuple[str, PoseEstimate | None]:
+        """What the selection ``sel`` makes of the pair: (status, pose)."""
+        if sel.mask.sum() < self.config["min_matches"]:
+            return "too_few_matches", None
         # No measurable baseline: the camera stood (flow below static_flow_px) or only turned (the rotation fitted
         # alone leaves less than static_parallax_px: keypoint noise). The essential matrix is undefined then (MAGSAC++
         # fails, or returns a direction drawn from noise), and the rotation alone is the estimate. The parallax bound is
@@ -310,8 +320,16 @@ class Frontend:
         # would absorb it.
         flow = np.median(np.linalg.norm(k1[sel.mask] - k0[sel.mask], axis=1))  # in the pixels detected on
         R, angles = fit_rotation(corr.x0[sel.mask], corr.x1[sel.mask])
-        if flow < c["static_flow_px"] or np.median(angles) * cam.focal < c["static_parallax_px"]:
-            return FrameResult(stamp, "no_motion", pose=PoseEstimate(R, np.zeros(3), np.zeros((3, 3)), sel.mask), **base)
-        if sel.pose is None:
-            return FrameResult(stamp, "pose_failed", **base)
-        return FrameResult(stamp, "ok", pose=sel.pose, **base)
+        if flow < self.config["static_flow_px"] or np.median(angles) * focal < self.config["static_parallax_px"]:
+            return "no_motion", PoseEstimate(R, np.zeros(3), np.zeros((3, 3)), sel.mask)
+        return ("pose_failed", None) if sel.pose is None else ("ok", sel.pose)
+
+    def _published(self, sel: Selection, corr: Correspondences) -> np.ndarray:
+        """The matches ~/matches carries: the pose fit's inliers, or with ``matches_within_px`` every match the fit
+        was given that lies within that Sampson distance of the final pose (more matches, longer tracks)."""
+        px = self.config["matches_within_px"]
+        if not px:
+            return sel.mask
+        candidates = sel.candidates if sel.candidates is not None else sel.mask
+        E = essential_from_pose(sel.pose.R, sel.pose.t)
+        return candidates & (sampson_distance(E, corr.x0, corr.x1) * corr.focal < px)

@@ -62,6 +62,7 @@ class Selection:
     mask: np.ndarray  # (M,) bool
     scores: np.ndarray | None
     pose: PoseEstimate | None
+    candidates: np.ndarray | None = None  # (M,) bool: what a robust fit was given (None: the mask itself)
 
 
 def _filtered(c: Correspondences, mask: np.ndarray) -> Selection:
@@ -90,7 +91,9 @@ def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, pol
         p0, p1 = (x0, x1) if polish is None else (c.x0[polish], c.x1[polish])
         pose = refine_pose(pose, p0, p1, threshold, cfg["refine_iterations"])
     mask[keep[inl]] = True
-    return Selection(mask, None, pose)
+    candidates = np.zeros(len(c), bool)
+    candidates[keep] = True
+    return Selection(mask, None, pose, candidates)
 
 
 def classic_mask(c: Correspondences, cfg: dict = DEFAULT_CONFIG) -> np.ndarray:
@@ -141,7 +144,7 @@ def nmnet_magsac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Co
     if classic:
         mask = mask & classic_mask(c, cfg)
     sel = robust_fit(c, mask, "magsac", cfg)
-    return Selection(sel.mask, scores, sel.pose)
+    return Selection(sel.mask, scores, sel.pose, sel.candidates)
 
 
 def _remember_last(f: Callable[[Correspondences], tuple]) -> Callable[[Correspondences], tuple]:

@@ -89,6 +89,39 @@ def test_tracks_follow_points_through_kitti_frames_and_restart_with_new_ids():
     assert r.status == "ok" and not set(r.track_ids[r.mask].tolist()) & seen
 
 
+def test_matches_within_px_publishes_the_pose_fits_candidates_near_the_pose_for_longer_tracks():
+    """matches_within_px 0.5: every match MAGSAC++ was given that lies within 0.5 px of the final pose is published,
+    not only its inliers at pose_threshold_px (0.15 px): more matches and tracks seen in more frames, as consistent
+    with the ground truth; the pose, and the count the covariance rests on (its inliers), are as with 0."""
+    from nmnet_ros.geometry import essential_from_pose, sampson_distance
+    from nmnet_ros.pipeline import Frontend
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    runs = {}
+    for px in (0.0, 0.5):
+        fe, results = Frontend(seq.camera, {"matches_within_px": px}), []
+        for i in range(8):
+            results.append(fe.process(seq.image(i), float(i)))
+        runs[px] = results[1:]
+    gt_px = []
+    for i, (a, b) in enumerate(zip(runs[0.0], runs[0.5], strict=True), 1):
+        assert a.status == b.status == "ok" and np.allclose(a.pose.R, b.pose.R) and np.allclose(a.pose.t, b.pose.t)
+        assert a.pose_matches == b.pose_matches == a.num_selected and b.num_selected > 1.3 * a.num_selected
+        assert np.mean(b.mask[a.mask]) > 0.99 and (b.scores[b.mask] > 0.5).all()  # the inliers stay, all NM-Net's
+        E = essential_from_pose(*seq.relative_pose(i - 1, i))
+        gt_px.append(seq.camera.focal * sampson_distance(E, seq.camera.normalize(b.k0[b.mask]),
+                                                         seq.camera.normalize(b.k1[b.mask])))
+    tracks = {px: track_summary(r.track_ids[r.mask] for r in rs) for px, rs in runs.items()}
+    share = np.mean(np.concatenate(gt_px) < 1.0)
+    print(f"published {sum(r.num_selected for r in runs[0.5])} against {sum(r.num_selected for r in runs[0.0])}; "
+          f"{100 * share:.2f} % within 1 px of the ground truth; tracks {tracks}")
+    assert share > 0.99 and tracks[0.5]["mean_frames"] > tracks[0.0]["mean_frames"] + 0.3
+    classic = Frontend(seq.camera, {"selector": "ratio+magsac", "matches_within_px": 0.5})  # no network: scores 1.0
+    classic.process(seq.image(0), 0.0)
+    r = classic.process(seq.image(1), 1.0)
+    assert r.num_selected > r.pose_matches and (r.scores[r.mask] == 1.0).all() and (r.scores[~r.mask] == 0.0).all()
+
+
 def test_a_streams_tracks_are_summed_up_by_length():
     """Track 1 in 3 messages (4 frames), track 2 in 1 (2 frames), track 3 in 5 (6 frames); no messages: zeros."""
     t = track_summary([np.array([1, 2, 3]), np.array([1, 3]), np.array([1, 3]), np.array([3]), np.array([3])])
