@@ -91,20 +91,24 @@ def test_weighted_eight_point_ignores_zero_weight_outliers():
 
 
 def test_a_camera_creeping_before_a_distant_scene_gets_its_pose():
-    """1 cm between frames before points 5-50 m away (a robot at walking pace, 30 Hz), 0.3 px of noise at f = 500:
-    the pose comes out, decided by the points. OpenCV's recoverPose without a distance lets only points within 50
-    baselines (0.5 m here) vote, so it found none and the front end said pose_failed; on KITTI-07's first frames (9 cm
-    apart) 0-2 of ~1000 voted."""
+    """A robot at walking pace filmed at 30 Hz: 1.7 cm between frames, mostly forward, before points 1.5-10 m away
+    (about 1 px of parallax at f = 500: the front end takes the essential matrix, not the turning-camera rule), 0.3 px
+    of noise. The pose comes out, decided by the points. OpenCV's recoverPose without a distance lets only points
+    within 50 baselines (0.85 m here) vote, so none did and the front end said pose_failed; on KITTI-07's first
+    frames (9 cm apart) 0-2 of ~1000 voted."""
     rng = np.random.default_rng(4)
-    X = np.c_[rng.uniform(-10, 10, (400, 2)), rng.uniform(5, 50, 400)]
-    R, t = rot([0, 1, 0], 0.3), np.array([0.002, 0.0, -0.01])  # mostly forward, as a driving robot
+    X = np.c_[rng.uniform(-4, 4, (400, 2)), rng.uniform(1.5, 10, 400)]
+    R, t = rot([0, 1, 0], 0.3), np.array([0.004, 0.0, -0.0165])
     X1 = X @ R.T + t
     x0 = X[:, :2] / X[:, 2:] + rng.normal(0, 0.3 / 500, (400, 2))
     x1 = X1[:, :2] / X1[:, 2:] + rng.normal(0, 0.3 / 500, (400, 2))
+    rot_only = (X @ R.T)[:, :2] / (X @ R.T)[:, 2:]
+    parallax = np.median(np.linalg.norm(x1 - rot_only, axis=1)) * 500
+    assert 0.5 < parallax < 2.0  # pixels: above static_parallax_px (0.25), so the front end takes E, not the rotation
     pose = recover_pose(essential_from_pose(R, t), x0, x1)
     assert pose is not None and pose.inliers.mean() > 0.5, None if pose is None else pose.inliers.mean()  # most in front
     rot_err, trans_err = pose_error_deg(pose, R, t)
-    assert rot_err < 0.01 and trans_err < 1.0, (rot_err, trans_err)  # the true solution of the four
+    assert rot_err < 0.01 and trans_err < 2.0, (rot_err, trans_err)  # the true solution of the four
 
 
 def test_recover_pose_equals_opencv_on_all_points_with_the_mask():
