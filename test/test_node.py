@@ -581,7 +581,7 @@ def test_reset_service_restarts_the_chain(ros, tmp_path):
 
 def test_parameters_change_while_running(ros, tmp_path):
     """`ros2 param set` on a running node: a new NM-Net cut, pose estimator, resize_width, min_matches, static_flow_px,
-    time_jump_s and the covariance's sigmas act from the next frame;
+    time_jump_s, the covariance's sigmas and matches_within_px act from the next frame;
     a bad choice, a missing weights file, a start-up-only parameter, a value out of range and one of the
     wrong type are refused with the reason,
     and the node keeps its settings and keeps running."""
@@ -634,6 +634,12 @@ def test_parameters_change_while_running(ros, tmp_path):
         n = len(frame(50, 10.0))
         cov = np.asarray(peer.pose_for(10.0).pose.covariance).reshape(6, 6)
         np.testing.assert_allclose(np.diag(cov), [0.004**2 * 200 / n] * 3 + [np.radians(0.05) ** 2 * 200 / n] * 3, rtol=1e-9)
+        # matches_within_px: every match MAGSAC++ was given within 0.5 px of the pose is published; the covariance
+        # still rests on the pose's own inliers, so it is wider than the published count would make it
+        assert all(r.successful for r in set_params(peer, {"matches_within_px": 0.5}))
+        m = len(frame(51, 11.0))
+        cov = np.asarray(peer.pose_for(11.0).pose.covariance).reshape(6, 6)
+        assert m > 1.2 * n and cov[0, 0] > 1.1 * 0.004**2 * 200 / m, (m, n, cov[0, 0])
     assert "parameters changed: {'score_threshold': 0.95}" in node.output()
     assert "NM-Net arithmetic: " in node.output()  # what the network runs in on this CPU, said at start-up
 
