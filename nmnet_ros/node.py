@@ -108,7 +108,6 @@ class Stats:
     last_keypoints: int = 0
     last_selected: int = 0
     last_continued: int = 0  # the last frame's selected matches that continue a track of the frame before
-    last_track_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     last_status: str = "waiting"
     t_start: float = field(default_factory=time.monotonic)
 
@@ -426,6 +425,7 @@ class NMNetNode(Node):
     def _publish(self, header, img: np.ndarray, r: FrameResult) -> None:
         s = self.stats
         s.last_status, s.last_matches, s.last_selected, s.last_keypoints = r.status, len(r.k0), r.num_selected, r.num_keypoints
+        s.last_continued = r.tracks_continued
         if r.status == "too_few_matches":
             self._warn("too_few_matches", f"only {r.num_selected} matches selected of {len(r.k0)} (need min_matches = "
                                              f"{self.frontend.config['min_matches']}): relative_pose says no estimate")
@@ -435,8 +435,6 @@ class NMNetNode(Node):
         elif r.status == "pose_failed":
             self._warn("pose_failed", "pose estimation failed on the selected matches")
         sel = r.mask
-        ids = r.track_ids[sel]
-        s.last_continued, s.last_track_ids = int(np.isin(ids, s.last_track_ids).sum()), ids
         cloud = PointCloud2(header=header)
         f = matches_to_cloud_fields(r.k0[sel], r.k1[sel], r.scores[sel], r.track_ids[sel])
         cloud.height, cloud.width, cloud.point_step, cloud.row_step = f["height"], f["width"], f["point_step"], f["row_step"]

@@ -145,6 +145,7 @@ class FrameResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     num_keypoints: int = 0
     pose_matches: int = 0  # the matches the pose rests on (the robust fit's inliers): the published covariance's n
+    tracks_continued: int = 0  # selected matches that continue a track of the frame before
 
     @property
     def num_selected(self) -> int:
@@ -209,14 +210,16 @@ class Frontend:
             self._cost_ms.clear()  # other features, other costs
 
     def _continue_tracks(self, before: Prepared, p: Prepared, idx: np.ndarray, mask: np.ndarray,
-                         scores: np.ndarray) -> np.ndarray:
-        """Track ids of the selected matches (one per match, NO_TRACK for the others); keeps ``p``'s for its successor."""
+                         scores: np.ndarray) -> tuple[np.ndarray, int]:
+        """Track ids of the selected matches (one per match, NO_TRACK for the others) and how many of them continue a
+        track (the ids handed out before this pair); keeps ``p``'s ids for its successor."""
         prev_ids = before.track_ids if before.track_ids is not None else np.full(len(before.feats), NO_TRACK, np.int64)
+        first_new = self._next_track
         p.track_ids, selected, self._next_track = continue_tracks(prev_ids, idx[mask], scores[mask], len(p.feats),
-                                                                  self._next_track)
+                                                                  first_new)
         ids = np.full(len(idx), NO_TRACK, np.int64)
         ids[mask] = selected
-        return ids
+        return ids, int((selected < first_new).sum())
 
     def reset(self) -> None:
         """Forget the previous frame (the next frame starts a new chain)."""
@@ -305,7 +308,7 @@ class Frontend:
         base["scores"] = sel.scores.astype(np.float32) if sel.scores is not None else mask.astype(np.float32)
         base["mask"] = mask
         base["pose_matches"] = int(sel.mask.sum())
-        base["track_ids"] = self._continue_tracks(prev[1], p, m.idx, mask, base["scores"])
+        base["track_ids"], base["tracks_continued"] = self._continue_tracks(prev[1], p, m.idx, mask, base["scores"])
         return FrameResult(stamp, status, pose=pose, **base)
 
     def _status(self, sel: Selection, corr: Correspondences, k0: np.ndarray, k1: np.ndarray, focal: float

@@ -71,6 +71,7 @@ def test_tracks_follow_points_through_kitti_frames_and_restart_with_new_ids():
             went_on = [(at[tuple(k)], t) for k, t in zip(r.k0[r.mask], ids, strict=True) if tuple(k) in at]
             print(f"frame {i}: {len(went_on)} of {len(ids)} selected matches continue a track")
             assert len(went_on) > 0.4 * len(ids) and all(a == b for a, b in went_on)
+            assert r.tracks_continued == len(went_on)  # what /diagnostics reports
             assert not (set(ids.tolist()) - {a for a, _ in went_on}) & seen  # new tracks get new ids
         for k0, t in zip(r.k0[r.mask], ids, strict=True):
             first_seen.setdefault(int(t), (i - 1, k0))
