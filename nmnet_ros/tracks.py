@@ -69,26 +69,27 @@ class TrackLengths:
         seen[i_cur] += self._seen[i_prev]
         ended = np.ones(len(self._ids), bool)
         ended[i_prev] = False
-        self._count(self._seen[ended])
+        _count(self._ended, self._seen[ended])
         self._ids, self._seen = ids, seen
-
-    def _count(self, seen: np.ndarray) -> None:
-        for n, c in zip(*np.unique(seen, return_counts=True), strict=True):
-            self._ended[int(n)] = self._ended.get(int(n), 0) + int(c)
 
     def summary(self) -> dict:
         """``count``, ``mean_frames`` (the frames a track is seen in: its messages + 1), ``share_5_frames`` (percent
         of tracks seen in 5 frames or more) and ``longest``, the tracks still going counted as they stand; zeros for
         a stream without matches."""
-        hist = dict(self._ended)
-        for n, c in zip(*np.unique(self._seen, return_counts=True), strict=True):
-            hist[int(n)] = hist.get(int(n), 0) + int(c)
+        hist = _count(dict(self._ended), self._seen)
         count = sum(hist.values())
         if not count:
             return {"count": 0, "mean_frames": 0.0, "share_5_frames": 0.0, "longest": 0}
         return {"count": count, "mean_frames": sum((n + 1) * c for n, c in hist.items()) / count,
                 "share_5_frames": 100 * sum(c for n, c in hist.items() if n + 1 >= 5) / count,
                 "longest": max(hist) + 1}
+
+
+def _count(hist: dict[int, int], seen: np.ndarray) -> dict[int, int]:
+    """``hist`` (messages a track is seen in -> tracks) with the tracks of ``seen`` added."""
+    for n, c in zip(*np.unique(seen, return_counts=True), strict=True):
+        hist[int(n)] = hist.get(int(n), 0) + int(c)
+    return hist
 
 
 def track_summary(per_message: Iterable[np.ndarray]) -> dict:
