@@ -146,6 +146,7 @@ class Step:
     selected: int
     R: np.ndarray | None  # the pose, x_cur = R x_prev + t, where the frame has one
     t: np.ndarray | None
+    T: np.ndarray | None  # the ground truth's camera pose at the frame's stamp, where it has one
 
 
 class Run:
@@ -157,15 +158,14 @@ class Run:
         self.steps: list[Step] = []
         self.scores = PairScores()
         self.tracks = TrackLengths()
-        self.gt: list[np.ndarray | None] = []
         self.seconds = 0.0
 
     def add(self, r: FrameResult, T: np.ndarray | None) -> None:
         """One more frame's result ``r``, with the ground truth's pose ``T`` at its stamp (None: none there)."""
-        self.scores.add(r.status, r.pose, self.gt[-1] if self.gt else None, T, r.stamp)
+        self.scores.add(r.status, r.pose, self.steps[-1].T if self.steps else None, T, r.stamp)
         self.tracks.add(r.track_ids[r.mask])
-        self.steps.append(Step(r.stamp, r.status, len(r.k0), r.num_selected, *((r.pose.R, r.pose.t) if r.pose else (None, None))))
-        self.gt.append(T)
+        R, t = (r.pose.R, r.pose.t) if r.pose else (None, None)
+        self.steps.append(Step(r.stamp, r.status, len(r.k0), r.num_selected, R, t, T))
 
     def summary(self, frames: int, dropped: int = 0) -> dict:
         """The summary JSON: counts, rate, median errors, pose AUCs, selections per frame, statuses."""
@@ -288,8 +288,8 @@ def truth_missed(truth: Trajectory | None, stamps: list[float]) -> str | None:
 def chain_trajectory(run: Run) -> tuple[np.ndarray, np.ndarray]:
     """Estimated and ground-truth camera positions; each estimated step scaled to the GT step length."""
     est, gt, T_est, T_gt_prev = [], [], None, None
-    for s, T in zip(run.steps, run.gt, strict=True):
-        if T is None:
+    for s in run.steps:
+        if (T := s.T) is None:
             continue
         if T_est is None:
             T_est = T.copy()
