@@ -248,12 +248,6 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
                 node_proc.kill()
 
 
-def score_recording(path: Path, truth: Trajectory | None) -> dict:
-    """Pose errors of a recorded ``~/relative_pose`` stream against ``truth`` (the replay's
-    :func:`~nmnet_ros.replay.ground_truth`); the first part of :func:`recording_summary`."""
-    return recording_summary(path, truth)[0]
-
-
 def recording_summary(path: Path, truth: Trajectory | None) -> tuple[dict, dict]:
     """A recording of the node's outputs, read once: its ``~/relative_pose`` stream scored against ``truth`` as the
     offline replay scores its results (:class:`~nmnet_ros.replay.PairScores`; "no estimate" is a failure), and the

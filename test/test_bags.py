@@ -446,7 +446,7 @@ def test_a_standing_camera_is_scored_on_its_rotation(tmp_path):
     """Pairs whose ground truth did not move (standing, or turning on the spot) have no direction to score, so the
     pose AUC leaves them out; their rotation is scored on its own (EuRoC V1_01's first second: the MAV on the
     ground), offline and as --live scores its recording, and the summary says so. Before, they were not scored."""
-    from nmnet_ros.live import score_recording
+    from nmnet_ros.live import recording_summary
 
     bag = tmp_path / "euroc"
     assert make_bag(data_dir("euroc-v101-cam0"), bag, "mcap", frames=range(0, 21)) == 21
@@ -456,7 +456,7 @@ def test_a_standing_camera_is_scored_on_its_rotation(tmp_path):
     assert s["scored_pairs"] == 0 and s["status"] == {"first_frame": 1, "no_motion": 20}, s
     assert s["still_pairs"] == 20 and s["median_still_rot_deg"] < 0.02, s  # measured 0.007; the identity's 0.02
     assert "without motion in the ground truth (20 pairs: standing, or turning on the spot): median rotation error" in r.stdout
-    live = score_recording(tmp_path / "o.mcap", bag_ground_truth(BagReader(bag), "/ground_truth/pose"))
+    live = recording_summary(tmp_path / "o.mcap", bag_ground_truth(BagReader(bag), "/ground_truth/pose"))[0]
     assert live["still_pairs"] == 20 and live["median_still_rot_deg"] < 0.02, live  # every pair, as offline
 
 def test_a_summary_without_scored_pairs_is_strict_json():
@@ -717,7 +717,7 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     give, offline and in --live's scoring; a bad file, or a transform the bag lacks, stops the replay before the output
     file is made, naming the file and line or the transforms there are."""
     from nmnet_ros.datasets import read_tum
-    from nmnet_ros.live import score_recording
+    from nmnet_ros.live import recording_summary
 
     tum = data_dir("kitti-07") / "groundtruth.txt"  # the poses the bag was made with, at the frames' stamps
     runs = {}
@@ -738,18 +738,18 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
         assert r.returncode == 2 and says in r.stderr and not (tmp_path / "none.mcap").exists(), r.stderr
     own = bag_ground_truth(BagReader(raw_bag), "/ground_truth/pose")
     tf = tf_ground_truth(BagReader(raw_bag), "/tf", "world", "camera_gt")
-    live_scoring = [score_recording(tmp_path / "bag.mcap", gt) for gt in (own, read_tum(tum), tf)]
+    live_scoring = [recording_summary(tmp_path / "bag.mcap", gt)[0] for gt in (own, read_tum(tum), tf)]
     assert live_scoring[0]["scored_pairs"] == 5 and live_scoring[1] == pytest.approx(live_scoring[0])  # as --live scores
     assert live_scoring[2] == pytest.approx(live_scoring[0])
-    unscored = score_recording(tmp_path / "bag.mcap", None)  # no ground truth: nothing scored
+    unscored = recording_summary(tmp_path / "bag.mcap", None)[0]  # no ground truth: nothing scored
     assert unscored["scored_pairs"] == 0 and unscored["median_rot_deg"] is None and np.isnan(unscored["auc5"])
     shifted = tmp_path / "shifted.txt"  # every pose a frame later: the errors change
     rows = [ln.split() for ln in tum.read_text().splitlines() if not ln.startswith("#")]
     shifted.write_text("".join(" ".join([a[0], *b[1:]]) + "\n" for a, b in zip(rows, rows[1:], strict=False)))
-    assert score_recording(tmp_path / "bag.mcap", read_tum(shifted)) != pytest.approx(live_scoring[0])
+    assert recording_summary(tmp_path / "bag.mcap", read_tum(shifted))[0] != pytest.approx(live_scoring[0])
     gap = tmp_path / "gap.txt"  # no pose for frame 62: its two pairs are not scored (not against frame 61's pose)
     gap.write_text("".join(" ".join(r) + "\n" for r in rows[55:62] + rows[63:70]))
-    assert score_recording(tmp_path / "bag.mcap", read_tum(gap))["scored_pairs"] == 3
+    assert recording_summary(tmp_path / "bag.mcap", read_tum(gap))[0]["scored_pairs"] == 3
     bad = tmp_path / "bad.txt"
     bad.write_text("0.0 1 2 3\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--gt", str(bad), "--no-progress")
@@ -765,7 +765,7 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
     scores them (median errors 0.022 / 0.300 deg against 0.033 / 0.305: across a frame the path between the KITTI
     poses bends, which interpolation cannot know). Ground truth on another clock is named."""
     from nmnet_ros.datasets import Sequence, between, read_tum
-    from nmnet_ros.live import score_recording
+    from nmnet_ros.live import recording_summary
     from nmnet_ros.posemsg import rot_to_quat
 
     seq = Sequence.load(data_dir("kitti-07"))  # the raw bag's frames 60-65, and the pose after them
@@ -799,16 +799,16 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
     assert np.abs(at_frames[1:, :3, 3] - seq.poses[61:66, :3, 3]).max() < 1e-3  # within a millimetre
     assert 0.02 < np.abs(at_frames[0, :3, 3] - seq.poses[60, :3, 3]).max() < 0.04  # before the stream: the nearest pose
     exact_truth = bag_ground_truth(BagReader(raw_bag), "/ground_truth/pose")
-    live_like = score_recording(tmp_path / "exact.mcap", truth)  # as --live scores
+    live_like = recording_summary(tmp_path / "exact.mcap", truth)[0]  # as --live scores
     assert live_like["scored_pairs"] == 5
-    assert abs(live_like["median_trans_deg"] - score_recording(tmp_path / "exact.mcap", exact_truth)["median_trans_deg"]) < 0.02
+    assert abs(live_like["median_trans_deg"] - recording_summary(tmp_path / "exact.mcap", exact_truth)[0]["median_trans_deg"]) < 0.02
     capsys.readouterr()
     rows = [ln.split() for ln in (data_dir("kitti-07") / "groundtruth.txt").read_text().splitlines() if ln[0] != "#"]
     (tmp_path / "other_clock.txt").write_text("".join(f"{float(r[0]) + 1000} {' '.join(r[1:])}\n" for r in rows))
     says = "the ground truth has no pose at any frame's stamp (poses 1000.000 .. "
     r, other = replay_json(raw_bag, tmp_path, "--gt", str(tmp_path / "other_clock.txt"), name="other")
     assert r.returncode == 0 and says in r.stdout and other["scored_pairs"] == 0, (r.stdout, other)
-    assert score_recording(tmp_path / "exact.mcap", read_tum(tmp_path / "other_clock.txt"))["scored_pairs"] == 0
+    assert recording_summary(tmp_path / "exact.mcap", read_tum(tmp_path / "other_clock.txt"))[0]["scored_pairs"] == 0
     assert says in capsys.readouterr().err
 
 
