@@ -292,13 +292,16 @@ class Frontend:
         m = p.matches if fits else self._match(before, feats, timings)
         k0, k1 = before.keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
         cam = camera if size == p.full else camera.resized(*size, p.full)
+        # each frame's keypoints through the camera it was taken with (a zoom camera's K changes frame to frame)
+        cam0 = prev[1].camera if prev[1].camera is not None else camera
+        cam0 = cam0 if size == p.full else cam0.resized(*size, p.full)
         base = dict(k0=to_frame_pixels(k0, size, p.full), k1=to_frame_pixels(k1, size, p.full), timings_ms=timings,
                     num_keypoints=len(feats), scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool),
                     track_ids=np.full(len(m), NO_TRACK, np.int64))
         if len(m) < c["min_matches"]:
             return FrameResult(stamp, "too_few_matches", **base)
         corr = Correspondences(k0, k1, before.frames[m.idx[:, 0]], feats.frames[m.idx[:, 1]],
-                               cam.normalize(k0), cam.normalize(k1), m.ratio, m.mutual, cam.focal, size, size)
+                               cam0.normalize(k0), cam.normalize(k1), m.ratio, m.mutual, cam.focal, size, size)
         t = time.perf_counter()
         sel = self.select(corr)
         timings["select+pose"] = 1000 * (time.perf_counter() - t)
