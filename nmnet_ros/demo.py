@@ -23,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet demo``."""
     p.add_argument("--out-dir", type=Path, default=Path("nmnet_demo"), help="folder for the output .mcap, summary and plots")
     p.add_argument("--bag", type=Path, default=SAMPLE_BAG, help="bag to replay (default: the bundled sample)")
-    p.add_argument("--rate", type=float, default=0.3,
+    p.add_argument("--rate", type=replay.playback_rate, default=0.3,
                    help="live playback speed (x recorded 10 Hz); 0.3 lets a 2-core machine keep up at 2000 keypoints")
 
 

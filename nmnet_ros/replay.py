@@ -28,7 +28,7 @@ from .detectors import DETECTORS
 from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose, rotation_error_deg
 from .mcap_out import McapOutput
 from .model import load_model
-from .params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
+from .params import PARAMS, SELECTORS, check_value, frontend_config, pose_sigmas, read_params_file
 from .pipeline import RESTARTS, FrameResult, Frontend, stamp_order, stamp_warning
 from .tracks import TrackLengths
 
@@ -427,20 +427,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "pose_estimator, nmnet+ratio+magsac; with --live one the node runs, as its pose_estimator)")
     p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (the node's weights; default: shipped)")
     p.add_argument("--detector", default=None, choices=sorted(DETECTORS), help="local feature frames (default: hessian-affine-fast)")
-    p.add_argument("--max-keypoints", type=int, default=None, help="keypoints per frame (default: 2000)")
-    p.add_argument("--resize-width", type=int, default=None, help="downscale frames wider than this before detection "
-                   "(the node's resize_width; default 0: full resolution)")
+    p.add_argument("--max-keypoints", type=node_value("max_keypoints"), default=None,
+                   help="keypoints per frame (default: 2000)")
+    p.add_argument("--resize-width", type=node_value("resize_width"), default=None,
+                   help="downscale frames wider than this before detection (the node's resize_width; default 0: full "
+                   "resolution)")
+    p.add_argument("--matches-within-px", type=node_value("matches_within_px"), default=None, metavar="PX",
+                   help="record every match within this Sampson distance of the pose, not only its inliers (the "
+                   "node's matches_within_px; default 0: the inliers)")
     p.add_argument("--precision", default=None, choices=PRECISIONS,
                    help="NM-Net arithmetic (the node's nmnet_precision; default auto: bfloat16 where the CPU has it natively)")
     p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
     p.add_argument("--baseline", action="store_true", help="also run SIFT + ratio + MAGSAC++ on the same frames and print both")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--live", action="store_true", help="play the bag onto ROS 2 topics into the node (own process) and record it")
-    p.add_argument("--rate", type=float, default=1.0, help="live mode: playback speed factor")
+    p.add_argument("--rate", type=playback_rate, default=1.0, help="live mode: playback speed factor")
 
 
 FLAGS = {"weights": "weights", "detector": "detector", "max_keypoints": "max_keypoints", "resize_width": "resize_width",
-         "precision": "nmnet_precision", "stamp_source": "stamp_source"}  # replay option -> the node parameter it sets
+         "matches_within_px": "matches_within_px", "precision": "nmnet_precision",
+         "stamp_source": "stamp_source"}  # replay option -> the node parameter it sets
 
 
 NODE_ESTIMATORS = {selector: estimator for estimator, selector in SELECTORS.items()}  # selector -> pose_estimator
@@ -468,6 +474,34 @@ def gt_camera(text: str) -> np.ndarray:
         return parse_pose(text)
     except ValueError as e:
         raise argparse.ArgumentTypeError(str(e)) from e
+
+
+def node_value(name: str) -> Callable[[str], object]:
+    """An argparse type for an option that sets node parameter ``name``: the node's own type and range check, so a
+    value the node would refuse stops the command there, naming the option (argparse adds it) and the range."""
+    kind = type(PARAMS[name][0])
+
+    def parse(text: str) -> object:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if (why := check_value(name, value)) is not None:
+            raise argparse.ArgumentTypeError(why)
+        return value
+
+    return parse
+
+
+def playback_rate(text: str) -> float:
+    """``--rate``'s value: a finite speed factor above 0 (0.5 plays at half the recorded speed)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a speed factor > 0 (1 = as recorded, 0.5 = half speed)")
+    return value
 
 
 def seconds(text: str) -> float:

@@ -636,6 +636,31 @@ def test_a_driver_that_never_stamps_is_named_a_few_times_then_counted(raw_bag, t
             assert [s[k] for k in keys] == pytest.approx([exact[k] for k in keys]), (s, exact)
 
 
+def test_replay_options_that_set_node_parameters_are_checked_as_the_node_checks_them(raw_bag, tmp_path):
+    """--max-keypoints, --resize-width and --matches-within-px are refused outside the node's ranges, naming the
+    option, before anything is written (a --max-keypoints of -5 used to run, keeping every keypoint but five, and
+    recorded -5 as the setting); so is a --rate the player cannot keep (it used to play a negative one backwards).
+    --matches-within-px records the matches near the pose, not only its inliers."""
+    for option, bad, why in (("--max-keypoints", "-5", "max_keypoints: -5 is out of range 100 .. 8000"),
+                             ("--max-keypoints", "2.5", "'2.5' is not an integer"),
+                             ("--resize-width", "-1", "resize_width: -1 is out of range 0 .. 20000"),
+                             ("--matches-within-px", "-1", "matches_within_px: -1.0 is out of range 0.0 .. 100.0"),
+                             ("--rate", "0", "'0': expected a speed factor > 0")):
+        r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--live", option, bad)
+        assert r.returncode == 2 and f"argument {option}: {why}" in r.stderr, (option, r.stderr)
+        assert not (tmp_path / "none.mcap").exists()
+    r = nmnet("demo", "--rate", "-1", "--out-dir", str(tmp_path / "demo"))
+    assert r.returncode == 2 and "argument --rate: '-1': expected a speed factor > 0" in r.stderr, r.stderr
+    summaries = {}
+    for px in ("0", "0.5"):
+        r, summaries[px] = replay_json(raw_bag, tmp_path, "--matches-within-px", px, name=f"within{px}")
+        assert r.returncode == 0, r.stderr
+    print({px: s["selected_per_frame"] for px, s in summaries.items()})
+    assert summaries["0.5"]["parameters"]["matches_within_px"] == 0.5
+    assert summaries["0.5"]["selected_per_frame"] > 1.2 * summaries["0"]["selected_per_frame"]
+    assert summaries["0.5"]["auc5"] == summaries["0"]["auc5"]  # the same poses
+
+
 def test_start_and_duration_replay_a_part_of_the_bag(raw_bag, tmp_path):
     """--start/--duration (seconds after the first frame, by recording time, as ros2 bag play's --start-offset) replay
     that part only, offline and live, with the calibration recorded before it; a window after the bag's end is said,
