@@ -493,26 +493,25 @@ def node_value(name: str) -> Callable[[str], object]:
     return parse
 
 
-def playback_rate(text: str) -> float:
-    """``--rate``'s value: a finite speed factor above 0 (0.5 plays at half the recorded speed)."""
+def _finite(text: str, least: float, strict: bool, expected: str) -> float:
+    """An option's value as a finite number at least ``least`` (above it when ``strict``); else argparse's error."""
     try:
         value = float(text)
     except ValueError:
         value = float("nan")
-    if not 0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a speed factor > 0 (1 = as recorded, 0.5 = half speed)")
+    if not (least < value if strict else least <= value) or not value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected {expected}")
     return value
+
+
+def playback_rate(text: str) -> float:
+    """``--rate``'s value: a finite speed factor above 0 (0.5 plays at half the recorded speed)."""
+    return _finite(text, 0.0, True, "a speed factor > 0 (1 = as recorded, 0.5 = half speed)")
 
 
 def seconds(text: str) -> float:
     """``--start``'s and ``--duration``'s value: a finite number of seconds, not negative."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected seconds, a number >= 0")
-    return value
+    return _finite(text, 0.0, False, "seconds, a number >= 0")
 
 
 def replay_window(args: argparse.Namespace) -> tuple[float, float] | None:
