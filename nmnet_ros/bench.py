@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from .cli import whole
 from .neighbors import compatibility_neighbors, compatibility_neighbors_loop, spatial_neighbors
 
 if TYPE_CHECKING:  # the network and OpenCV load when a benchmark runs, not on import
@@ -255,11 +256,11 @@ def bench_hd(frames: list[np.ndarray], camera: Camera, size: tuple[int, int] = (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet bench``."""
     p.add_argument("--sizes", default="1000,2000", help="correspondence counts")
-    p.add_argument("--repeat", type=int, default=20)
+    p.add_argument("--repeat", type=whole(1), default=20)
     p.add_argument("--json", type=Path, default=None, help="write the numbers as JSON")
     p.add_argument("--pipeline", action="store_true", help="also time every pipeline stage on the sample bag's frames")
-    p.add_argument("--frames", type=int, default=16, help="frames of the sample bag used with --pipeline")
-    p.add_argument("--threads", type=int, default=None,
+    p.add_argument("--frames", type=whole(2), default=16, help="frames of the sample bag used with --pipeline")
+    p.add_argument("--threads", type=whole(1), default=None,
                    help="CPU threads of the serial timings (default: torch's); 1 = one node stage's budget")
 
 
@@ -267,8 +268,6 @@ def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet bench``."""
     if args.threads is None:
         return _run(args)
-    if args.threads < 1:
-        raise ValueError(f"--threads must be a whole number >= 1, got {args.threads}")
     with cpu_threads(args.threads):
         return _run(args)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from collections.abc import Callable
 
 # top-level packages that come from the ROS 2 wheels (x86_64 Linux) or a sourced ROS 2 installation
 ROS_PACKAGES = frozenset({"rclpy", "rcl_interfaces", "builtin_interfaces", "sensor_msgs", "geometry_msgs", "std_msgs",
@@ -20,6 +21,36 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "make-bag": ("nmnet_ros.make_bag", "convert a sequence folder into a ROS 1 .bag, ROS 2 .db3 or .mcap"),
     "replay": ("nmnet_ros.replay", "run the front end over a bag, record outputs, evaluate against ground truth"),
 }
+
+
+def whole(least: int) -> Callable[[str], int]:
+    """An argparse type: a whole number >= ``least``; argparse names the option when it is not."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < least:
+            raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number >= {least}")
+        return value
+
+    return parse
+
+
+def gaps(text: str) -> tuple[int, ...]:
+    """``--gaps``' value, '1-10' or '1,3,5': frame gaps >= 1, as a tuple (argparse names the option when it is not)."""
+    try:
+        if "-" in text:
+            a, b = (int(x) for x in text.split("-"))
+            out = tuple(range(a, b + 1))
+        else:
+            out = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        out = ()
+    if not out or min(out) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected frame gaps >= 1 as a range (1-10) or a list (1,3,5)")
+    return out
 
 
 def version() -> str:

@@ -20,6 +20,7 @@ import numpy as np
 
 from .bf16 import PRECISIONS
 from .cache import FeatureCache
+from .cli import gaps, whole
 from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
@@ -28,7 +29,6 @@ from .model_fast import precision_note
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, ROBUST, build
-from .train import parse_gaps
 
 
 def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, stride: int = 1,
@@ -192,9 +192,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help="sequence folders (optional frame range)")
     p.add_argument("--methods", default="nmnet,nmnet-sp,ratio,ransac,magsac,ratio+magsac,nmnet+magsac,oracle",
                    help=f"comma-separated, from: {', '.join(METHODS)}")
-    p.add_argument("--gaps", default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
-    p.add_argument("--stride", type=int, default=1, help="use every n-th frame as a pair's first frame")
-    p.add_argument("--max-pairs", type=int, default=None, help="at most this many pairs per sequence (evenly spread)")
+    p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
+    p.add_argument("--stride", type=whole(1), default=1, help="use every n-th frame as a pair's first frame")
+    p.add_argument("--max-pairs", type=whole(1), default=None, help="at most this many pairs per sequence (evenly spread)")
     p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (default: shipped)")
     p.add_argument("--weights-sp", type=Path, default=None, help="NM-Net-sp weights (default: shipped)")
     p.add_argument("--json", type=Path, default=None, help="write {method: metrics} as JSON")
@@ -243,7 +243,7 @@ def main(args: argparse.Namespace) -> int:
         labels = list(args.seqs)
     pairs, groups = [], []
     for spec, label in zip(args.seqs, labels, strict=True):
-        chosen = load_eval_pairs([spec], parse_gaps(args.gaps), cache, args.stride, args.max_pairs)
+        chosen = load_eval_pairs([spec], args.gaps, cache, args.stride, args.max_pairs)
         pairs += chosen
         groups += [label] * len(chosen)
     res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px,

@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 
 from .cache import FeatureCache
+from .cli import gaps, whole
 from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .neighbors import compatibility_neighbors, spatial_neighbors
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs
-from .train import parse_gaps
 
 BUCKETS = ((0, 20), (20, 35), (35, 50), (50, 101))
 
@@ -56,9 +56,9 @@ def study(pairs: list[PairData], k: int = 8) -> dict:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet neighbors``."""
     p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help="sequence folders (optional frame range)")
-    p.add_argument("--gaps", default="1-10", help="frame gaps, e.g. 1-10 or 1,2")
-    p.add_argument("--stride", type=int, default=10, help="use every n-th frame as a pair's first frame")
-    p.add_argument("--k", type=int, default=8)
+    p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,2")
+    p.add_argument("--stride", type=whole(1), default=10, help="use every n-th frame as a pair's first frame")
+    p.add_argument("--k", type=whole(1), default=8)
     p.add_argument("--json", type=Path, default=None, help="write the rows and table as JSON")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),
@@ -72,7 +72,7 @@ def main(args: argparse.Namespace) -> int:
     for spec in args.seqs:
         path, frames = parse_seq_spec(spec)
         seq = Sequence.load(path)
-        chosen = select_pairs(seq, parse_gaps(args.gaps), frames)
+        chosen = select_pairs(seq, args.gaps, frames)
         chosen = [(i, j) for i, j in chosen if i % args.stride == 0] if seq.pairs_file is None else chosen
         pairs += [make_pair(seq, i, j, cache) for i, j in chosen]
     res = study(pairs, args.k)

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from .cache import FeatureCache
+from .cli import gaps, whole
 from .datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
@@ -478,11 +479,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output folder for checkpoints")
     p.add_argument("--variant", choices=sorted(NEIGHBORS), default=DEFAULT_CONFIG["variant"])
     for key in ("epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs"):
-        p.add_argument("--" + key.replace("_", "-"), type=int, default=DEFAULT_CONFIG[key])
+        p.add_argument("--" + key.replace("_", "-"), type=whole(0 if key == "seed" else 1), default=DEFAULT_CONFIG[key])
     p.add_argument("--lr", type=float, default=DEFAULT_CONFIG["lr"])
     p.add_argument("--device", default=DEFAULT_CONFIG["device"], help="torch device for the network, e.g. cpu or cuda")
     p.add_argument("--workers", type=int, default=DEFAULT_CONFIG["workers"], help="threads mining neighbours for a batch")
-    p.add_argument("--gaps", default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
+    p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--detector", default=DEFAULT_CONFIG["detector"], choices=sorted(DETECTORS),
                    help="local feature frames to train on (default: the node's; use the one your node runs)")
@@ -507,21 +508,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "0 = every pair equally often, 1 = every folder equally often")
 
 
-def parse_gaps(text: str) -> tuple[int, ...]:
-    """'1-10' or '1,3,5' -> tuple of ints."""
-    if "-" in text:
-        a, b = text.split("-")
-        return tuple(range(int(a), int(b) + 1))
-    return tuple(int(x) for x in text.split(","))
-
-
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet train``."""
     keys = ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr", "device", "workers",
             "detector", "label_threshold", "augment", "thin_inliers", "turn_deg", "balance", "ratio_input", "ess_loss")
     cfg = {k: getattr(args, k) for k in keys}
     cfg["init"] = str(args.init) if args.init else None
-    cfg["gaps"] = parse_gaps(args.gaps)
+    cfg["gaps"] = args.gaps
     summary = train(args.train, args.val, args.out, cfg, resume=args.resume, cache_dir=args.cache)
     print(json.dumps(summary, indent=1))
     return 0

@@ -1,5 +1,7 @@
 """`nmnet bench --pipeline` on three frames of the bundled sample bag: the JSON contract of issue 6 (numbers, not speed)."""
 
+import pytest
+
 from nmnet_ros.bags import BagReader, read_frames
 from nmnet_ros.bench import bench_pipeline
 from nmnet_ros.bf16 import native_bf16
@@ -41,8 +43,9 @@ def test_bench_threads_option_sets_and_restores_the_thread_counts(capsys):
     assert main(["bench", "--threads", "1", "--sizes", "200", "--repeat", "1"]) == 0
     assert "torch threads: 1" in capsys.readouterr().out
     assert (torch.get_num_threads(), cv2.getNumThreads()) == before
-    assert main(["bench", "--threads", "0"]) == 2
-    assert "--threads must be a whole number >= 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        main(["bench", "--threads", "0"])
+    assert stop.value.code == 2 and "argument --threads: '0': expected a whole number >= 1" in capsys.readouterr().err
 
 
 def test_hd_bench_times_full_size_against_resize_width():

@@ -32,6 +32,28 @@ def test_cli_lists_subcommands():
         assert sub in out
 
 
+@pytest.mark.parametrize("argv, option, why", [
+    (["eval", "d", "--stride", "0"], "--stride", "'0': expected a whole number >= 1"),  # was a ZeroDivisionError
+    (["eval", "d", "--max-pairs", "-3"], "--max-pairs", "'-3': expected a whole number >= 1"),  # was numpy's message
+    (["eval", "d", "--gaps", "-1"], "--gaps", "'-1': expected frame gaps >= 1"),  # was "invalid literal for int()"
+    (["eval", "d", "--gaps", "3-1"], "--gaps", "'3-1': expected frame gaps >= 1"),  # was "no pairs ... to evaluate"
+    (["train", "--train", "d", "--val", "d", "--out", "o", "--epochs", "0"], "--epochs", "'0': expected a whole number >= 1"),
+    (["train", "--train", "d", "--val", "d", "--out", "o", "--seed", "x"], "--seed", "'x': expected a whole number >= 0"),
+    (["neighbors", "d", "--k", "0"], "--k", "'0': expected a whole number >= 1"),
+    (["bench", "--repeat", "0"], "--repeat", "'0': expected a whole number >= 1"),
+])
+def test_a_count_or_gap_out_of_range_is_refused_naming_the_option(argv, option, why, capsys):
+    """The tools' counts and frame gaps are checked as they are parsed (exit 2, argparse's line naming the option)
+    instead of failing later with Python's or numpy's message, or running on nothing."""
+    from nmnet_ros.cli import gaps, main
+
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    assert f"argument {option}: {why}" in capsys.readouterr().err
+    assert gaps("1-3") == (1, 2, 3) and gaps("1,5") == (1, 5) and gaps("4") == (4,)
+
+
 # what a Python without rclpy and the message packages sees (arm64 with no ROS 2 sourced): their imports fail
 def _without_ros(code: str, cwd, blocked: str = "ROS_PACKAGES") -> subprocess.CompletedProcess:
     """Run ``code`` in a Python where the ``blocked`` packages (an expression; default: all of ROS) fail to import."""
