@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -84,12 +86,14 @@ def make_pair(seq: Sequence, i: int, j: int, cache: FeatureCache, match_config: 
 
 
 def parse_seq_spec(spec: str) -> tuple[str, range | None]:
-    """'PATH' or 'PATH:a-b' (frames a..b inclusive) -> (path, frames)."""
-    if ":" in spec and spec.rsplit(":", 1)[1].replace("-", "").isdigit():
-        path, rng = spec.rsplit(":", 1)
-        a, b = (int(x) for x in rng.split("-"))
-        return path, range(a, b + 1)
-    return spec, None
+    """'PATH' or 'PATH:a-b' (frames a..b inclusive) -> (path, frames); a suffix of digits and dashes that is not
+    a-b (``:5``, ``:-5-10``) is a ValueError saying the form."""
+    path, _, rng = spec.rpartition(":")
+    if not path or not rng.replace("-", "").isdigit() or Path(spec).is_dir():
+        return spec, None
+    if (m := re.fullmatch(r"(\d+)-(\d+)", rng)) is None:
+        raise ValueError(f"{spec}: a frame range is PATH:a-b, frames a to b (e.g. {path}:0-119), got {rng!r}")
+    return path, range(int(m[1]), int(m[2]) + 1)
 
 
 def to_correspondences(pair: PairData, with_labels: bool = True) -> Correspondences:

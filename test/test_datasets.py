@@ -43,6 +43,21 @@ def test_a_frame_range_outside_the_folder_is_named(tmp_path):
     assert seq.pairs((1,), range(157, 160)) == [(157, 158), (158, 159)]
 
 
+def test_a_frame_range_not_of_the_form_a_b_says_the_form(tmp_path):
+    """'PATH:5' or 'PATH:-5-10' is an error saying the form, not Python's "not enough values to unpack" or "invalid
+    literal for int()"; a folder whose own name ends in ':digits' is a folder."""
+    from nmnet_ros.pairs import parse_seq_spec
+
+    assert parse_seq_spec("d/kitti-07:0-119") == ("d/kitti-07", range(0, 120))
+    assert parse_seq_spec("d/kitti-07") == ("d/kitti-07", None)
+    for bad in ("5", "-5-10", "1-2-3"):
+        with pytest.raises(ValueError, match=f"d/kitti-07:{bad}: a frame range is PATH:a-b, frames a to b"):
+            parse_seq_spec(f"d/kitti-07:{bad}")
+    odd = tmp_path / "run:7"
+    odd.mkdir()
+    assert parse_seq_spec(str(odd)) == (str(odd), None)
+
+
 def test_pairs_txt_is_honoured(tmp_path):
     src = data_dir("strecha-entry-p10")
     dst = tmp_path / "entry"
