@@ -95,9 +95,15 @@ def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row]) -
         if line.strip() and not line.lstrip().startswith("#"):
             try:
                 rows.append(convert(line.split()))
+            except Unfit as e:
+                raise DatasetError(f"{path}:{n}: {e} in '{columns}', got {line.strip()!r}") from e
             except (ValueError, IndexError) as e:
                 raise DatasetError(f"{path}:{n}: expected '{columns}', got {line.strip()!r}") from e
     return rows
+
+
+class Unfit(ValueError):
+    """A row of the right form whose values cannot be right; says why."""
 
 
 def _floats(n: int) -> Callable[[list[str]], list[float]]:
@@ -118,9 +124,20 @@ def quat_to_rot(q: np.ndarray) -> np.ndarray:
                      np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
+def _pose_row(fields: list[str]) -> list[float]:
+    """A TUM row converter: eight finite numbers, the quaternion not zero (NaN poses and zero quaternions are how
+    some exporters write a lost track: refused, not turned into pairs that silently drop out)."""
+    row = _floats(8)(fields)
+    if not np.all(np.isfinite(row)):
+        raise Unfit("a value that is not a finite number")
+    if np.linalg.norm(row[4:8]) < 1e-9:
+        raise Unfit("a zero quaternion (qx qy qz qw all 0)")
+    return row
+
+
 def read_tum(path: Path) -> Trajectory:
     """TUM trajectory file ('timestamp tx ty tz qx qy qz qw' lines, T_WC) -> :class:`Trajectory`."""
-    rows = _read_table(path, "timestamp tx ty tz qx qy qz qw", _floats(8))
+    rows = _read_table(path, "timestamp tx ty tz qx qy qz qw", _pose_row)
     if not rows:
         raise DatasetError(f"{path}: no poses; expected lines 'timestamp tx ty tz qx qy qz qw'")
     a = np.array(rows, np.float64)

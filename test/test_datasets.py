@@ -268,6 +268,15 @@ def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
     (tmp_path / "empty.txt").write_text("# timestamp tx ty tz qx qy qz qw\n\n")
     with pytest.raises(DatasetError, match=r"empty.txt: no poses; expected lines 'timestamp tx ty tz"):
         read_tum(tmp_path / "empty.txt")
+    # a lost track written as NaN, or as a zero quaternion (a RuntimeWarning, then the frame's pairs silently dropped)
+    for n, cut, says in ((1, "nan", "a value that is not a finite number"), (4, "0 0 0 0", r"a zero quaternion \(qx qy qz qw all 0\)")):
+        row = gt[2].split()
+        row[n:n + len(cut.split())] = cut.split()
+        (dst / "groundtruth.txt").write_text("\n".join(gt[:2] + [" ".join(row)] + gt[3:]) + "\n")
+        with pytest.raises(DatasetError, match=rf"groundtruth.txt:3: {says} in 'timestamp tx ty tz qx qy qz qw'"):
+            Sequence.load(dst)
+        with pytest.raises(DatasetError, match=rf"groundtruth.txt:3: {says}"):
+            read_tum(dst / "groundtruth.txt")
     (dst / "groundtruth.txt").write_text("\n".join(gt) + "\n")
     rows = (dst / "images.txt").read_text().splitlines()
     (dst / "images.txt").write_text("\n".join(rows[:1] + ["t0 images/0001.jpg"] + rows[2:]) + "\n")
