@@ -532,7 +532,20 @@ def bag_ground_truth(reader: BagReader, wanted: str | None = None) -> Trajectory
         reader.warnings.append(note)
     if topic is None:
         return None
-    return _trajectory([(msg_time(m.msg), pose_from_msg(m.msg)) for m in reader.messages({topic})])
+    truth = _trajectory([(msg_time(m.msg), pose_from_msg(m.msg)) for m in reader.messages({topic})])
+    return _finite(truth, topic, reader) if truth is not None else None
+
+
+def _finite(truth: Trajectory, source: str, reader: BagReader) -> Trajectory | None:
+    """``truth``'s finite poses; the ones that are not (NaN, a zero quaternion: a lost track) noted in the reader's
+    warnings and left out, a gap in the ground truth (:meth:`Trajectory.poses_at`) rather than pairs scored against
+    NaN."""
+    finite, dropped = truth.finite()
+    if dropped:
+        reader.warnings.append(f"{source}: {dropped} of {len(truth.stamps)} ground-truth poses are not finite numbers "
+                               "(NaN, or a zero quaternion: a lost track?): left out as a gap in the ground truth (a frame in it "
+                               "is scored on poses interpolated across a short gap, not scored in a long one)")
+    return finite
 
 
 def _trajectory(stamped: list[tuple[float, np.ndarray]]) -> Trajectory | None:
@@ -559,6 +572,9 @@ def tf_ground_truth(reader: BagReader, topic: str, parent: str, child: str, came
         truth = tree.trajectory(parent, child)
     except TfError as e:
         raise BagError(f"--gt-tf {parent}:{child}: {e} (on {' and '.join([topic, *static])})") from e
+    if (finite := _finite(truth, f"--gt-tf {parent}:{child}", reader)) is None:
+        raise BagError(f"--gt-tf {parent}:{child}: no transform from one to the other is a finite number (on {topic})")
+    truth = finite
     if len(tree.chain(parent, child)) > 1:  # say which way it went, for the user to check
         reader.warnings.append(f"--gt-tf {parent}:{child}: chained {tree.route(parent, child)}")
     if (cam := camera_frame.strip("/")) and cam != child.strip("/") and cam in tree.frames():

@@ -118,7 +118,8 @@ def _floats(n: int) -> Callable[[list[str]], list[float]]:
 def quat_to_rot(q: np.ndarray) -> np.ndarray:
     """(qx, qy, qz, qw) -> 3x3 rotation matrix; (..., 4) -> (..., 3, 3)."""
     q = np.asarray(q, np.float64)
-    x, y, z, w = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a zero quaternion gives NaN: the caller's to refuse
+        x, y, z, w = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
     return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
                      np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
                      np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
@@ -174,6 +175,14 @@ class Trajectory:
         order = np.argsort(self.stamps, kind="stable")
         self.stamps, self.poses = self.stamps[order], self.poses[order]
         self.spacing = float(np.median(np.diff(self.stamps))) if len(self.stamps) > 1 else 0.0
+
+    def finite(self) -> tuple[Trajectory | None, int]:
+        """The poses that are finite numbers (a lost track is often published as NaN, or as a zero quaternion, which
+        turns into NaN) and how many were not; None when none is. What they leave is a gap, as :meth:`poses_at` sees one."""
+        ok = np.isfinite(self.stamps) & np.isfinite(self.poses).all(axis=(1, 2))
+        if ok.all():
+            return self, 0
+        return (Trajectory(self.stamps[ok], self.poses[ok]) if ok.any() else None), int((~ok).sum())
 
     def nearest(self, stamps: np.ndarray | float) -> np.ndarray:
         """Index of the pose nearest in time to each stamp (the earlier one on a tie)."""

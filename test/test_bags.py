@@ -737,6 +737,30 @@ def test_replay_skips_frames_stamped_before_zero_and_still_writes_its_file(raw_b
     assert read_output(tmp_path / "live.mcap")["/nmnet_node/relative_pose"] == 4
 
 
+def test_ground_truth_poses_that_are_not_numbers_are_a_gap_not_pairs_scored_against_nan(raw_bag, tmp_path):
+    """A motion-capture stream that loses the body publishes NaN (or a zero quaternion). Those poses are left out,
+    said once, and the frames at them are scored on the poses around them. Before, the pairs touching them were taken
+    for "without motion" with a NaN error, and 1 pair of 5 was scored."""
+    n = [0]
+
+    def lose_track(topic, msg):
+        if topic == "/ground_truth/pose":
+            n[0] += 1
+            if n[0] == 3:
+                msg.pose.position.x = float("nan")
+            if n[0] == 5:
+                q = msg.pose.orientation
+                q.x = q.y = q.z = q.w = 0.0
+        return msg
+
+    rewrite_bag(raw_bag, tmp_path / "lost", lose_track)
+    r, s = replay_json(tmp_path / "lost", tmp_path)
+    assert r.returncode == 0 and "RuntimeWarning" not in r.stderr, r.stderr
+    assert ("warning: /ground_truth/pose: 2 of 6 ground-truth poses are not finite numbers (NaN, or a zero quaternion: "
+            "a lost track?): left out") in r.stdout, r.stdout
+    assert s["scored_pairs"] == 5 and s["still_pairs"] == 0 and s["median_trans_deg"] < 2.0, s
+
+
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     """`--gt FILE` (TUM) and `--gt-tf world:camera_gt` (the bag's /tf) give the numbers the bag's own PoseStamped
     give, offline and in --live's scoring; a bad file, or a transform the bag lacks, stops the replay before the output
