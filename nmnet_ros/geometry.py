@@ -51,9 +51,12 @@ class Camera:
             raise CameraError(f"K must be 3x3, got shape {self.K.shape}")
         if not np.all(np.isfinite(self.K)) or not np.all(np.isfinite(self.dist)):
             raise CameraError("camera intrinsics contain NaN or inf; check the calibration (camera_info K/D)")
-        if self.K[0, 0] <= 0 or self.K[1, 1] <= 0 or self.K[2, 2] == 0:
+        if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
             raise CameraError(f"camera focal lengths must be positive, got fx={self.K[0, 0]}, fy={self.K[1, 1]}: "
                               "is the camera calibrated (camera_info K all zero)?")
+        if not np.allclose(self.K[2], [0.0, 0.0, 1.0]) or self.K[1, 0] != 0:
+            raise CameraError(f"K must be [fx s cx; 0 fy cy; 0 0 1], got rows 2-3 {self.K[1].tolist()} "
+                              f"{self.K[2].tolist()}: divide K by its last element, or check its row order")
         if self.model == "equidistant" and self.dist.size not in (0, 4):
             raise CameraError(f"equidistant (fisheye) distortion has 4 coefficients k1..k4, got {self.dist.size}")
         if self.dist.size not in (0, 4, 5, 8, 12, 14):
@@ -69,8 +72,9 @@ class Camera:
         pts = np.asarray(pts, np.float64).reshape(-1, 2)
         if len(pts) == 0:
             return np.zeros((0, 2))
-        if not np.any(self.dist):
-            return (pts - self.K[:2, 2]) / np.diag(self.K)[:2]
+        if not np.any(self.dist):  # K^-1 [u v 1], skew included
+            y = (pts[:, 1] - self.K[1, 2]) / self.K[1, 1]
+            return np.stack([(pts[:, 0] - self.K[0, 2] - self.K[0, 1] * y) / self.K[0, 0], y], axis=1)
         if self.model == "equidistant":
             return cv2.fisheye.undistortPoints(pts[:, None], self.K, self.dist).reshape(-1, 2)
         return cv2.undistortPoints(pts[:, None], self.K, self.dist).reshape(-1, 2)

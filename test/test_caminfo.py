@@ -61,6 +61,19 @@ def test_a_bad_camera_info_is_refused_with_the_reason():
         camera_from_info(msg, rectified=True)
 
 
+def test_k_is_inverted_with_its_skew_and_a_k_not_ending_in_0_0_1_is_refused():
+    """Normalised coordinates are K^-1 [u v 1] also with a skew term (it was dropped: 0.004 off at a skew of 3 on
+    this K, 2 px at fx 500). A K whose last row is not 0 0 1 (a homogeneous scale, rows swapped) was used as if it
+    were; now it is refused, naming the rows."""
+    K = np.array([[500.0, 3.0, 320.0], [0.0, 480.0, 240.0], [0.0, 0.0, 1.0]])
+    px = np.random.default_rng(0).random((50, 2)) * 600
+    expected = (np.linalg.inv(K) @ np.c_[px, np.ones(50)].T).T[:, :2]
+    np.testing.assert_allclose(Camera(K, np.zeros(5), 640, 480).normalize(px), expected, atol=1e-12)
+    for last in ([0.0, 0.0, 2.0], [0.0, 0.0, 0.0], [320.0, 240.0, 1.0]):
+        with pytest.raises(CameraError, match=r"K must be \[fx s cx; 0 fy cy; 0 0 1\], got rows 2-3"):
+            Camera(np.vstack([K[:2], last]))
+
+
 def test_frames_are_fitted_to_their_calibration():
     cam = Camera(K_FULL, D, 1280, 720)
     assert fit_camera(cam, (1280, 720)) == (cam, None)
