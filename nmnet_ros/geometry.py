@@ -161,6 +161,7 @@ class PoseEstimate:
     t: np.ndarray
     E: np.ndarray
     inliers: np.ndarray  # (N,) bool: correspondences consistent with the pose
+    alternative: PoseEstimate | None = None  # another pose the matches fit as well (a plane's second: planes.py)
 
 
 MIN_MATCHES = 8

@@ -50,6 +50,7 @@ from .imgconv import ImageError, array_to_image_fields, decode_compressed, image
 from .model_fast import precision_note
 from .params import NODE_NAME, PARAMS, STARTUP_ONLY, check_choices, frontend_config, pose_sigmas
 from .pipeline import FrameResult, Frontend, Prepared, stamp_order, stamp_warning
+from .planes import NOTE as PLANE_NOTE
 from .posemsg import relative_pose_of_current
 
 
@@ -434,6 +435,8 @@ class NMNetNode(Node):
                                     "static_parallax_px): publishing its rotation alone, with zero translation", period=30.0)
         elif r.status == "pose_failed":
             self._warn("pose_failed", "pose estimation failed on the selected matches")
+        elif r.pose is not None and r.pose.alternative is not None:
+            self._warn("plane_ambiguous", PLANE_NOTE, period=30.0)
         sel = r.mask
         cloud = PointCloud2(header=header)
         f = matches_to_cloud_fields(r.k0[sel], r.k1[sel], r.scores[sel], r.track_ids[sel])

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -26,6 +26,7 @@ from .features import Detector, Features
 from .geometry import Camera, PoseEstimate, essential_from_pose, fit_rotation, sampson_distance, scale_pixels
 from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
+from .planes import direction_angle_deg, plane_poses
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, Selection, build
 from .tracks import NO_TRACK, continue_tracks
@@ -188,6 +189,7 @@ class Frontend:
         self._last_prepared: Prepared | None = None  # the first stage's own previous frame
         self._cost_ms: dict[str, float] = {}  # running means of the stages' parts, for match_stage: auto
         self._next_track = 0  # the first unused track id (ids are never reused, not even after a restart)
+        self._motion: np.ndarray | None = None  # the last pair's translation direction, when that pair had a pose
 
     def reconfigure(self, changes: dict) -> None:
         """Apply config changes while running (the node's ``ros2 param set``).
@@ -280,6 +282,7 @@ class Frontend:
         feats, size = p.feats, p.size
         timings = {**(timings or {}), **p.timings_ms}
         prev, self.prev = self.prev, (stamp, p)
+        motion, self._motion = self._motion, None  # the motion before this pair; set again below if it gets a pose
         if prev is None or prev[1].detector is not p.detector:  # the first frame, or the first of a new detector
             return FrameResult(stamp, "first_frame", timings_ms=timings, num_keypoints=len(feats))
         if not related(prev[1], p):
@@ -307,7 +310,10 @@ class Frontend:
         timings["select+pose"] = 1000 * (time.perf_counter() - t)
         self._note_cost("rest", timings["select+pose"])
         status, pose = self._status(sel, corr, k0, k1, cam.focal)
-        mask = self._published(sel, corr) if status == "ok" else sel.mask
+        if status == "ok":
+            pose = one_of_a_plane(pose, corr.x0[sel.mask], corr.x1[sel.mask], cam.focal, motion)
+            self._motion = pose.t
+        mask = self._published(sel, pose, corr) if status == "ok" else sel.mask
         base["scores"] = sel.scores.astype(np.float32) if sel.scores is not None else mask.astype(np.float32)
         base["mask"] = mask
         base["pose_matches"] = int(sel.mask.sum())
@@ -330,12 +336,27 @@ class Frontend:
             return "no_motion", PoseEstimate(R, np.zeros(3), np.zeros((3, 3)), sel.mask)
         return ("pose_failed", None) if sel.pose is None else ("ok", sel.pose)
 
-    def _published(self, sel: Selection, corr: Correspondences) -> np.ndarray:
+    def _published(self, sel: Selection, pose: PoseEstimate, corr: Correspondences) -> np.ndarray:
         """The matches ~/matches carries: the pose fit's inliers, or with ``matches_within_px`` every match the fit
         was given that lies within that Sampson distance of the final pose (more matches, longer tracks)."""
         px = self.config["matches_within_px"]
         if not px:
             return sel.mask
         candidates = sel.candidates if sel.candidates is not None else sel.mask
-        E = essential_from_pose(sel.pose.R, sel.pose.t)
+        E = essential_from_pose(pose.R, pose.t)
         return candidates & (sampson_distance(E, corr.x0, corr.x1) * corr.focal < px)
+
+
+def one_of_a_plane(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, focal: float,
+                   motion: np.ndarray | None) -> PoseEstimate:
+    """``pose``, or when its matches (``x0n``, ``x1n``: its inliers, normalised) lie on one plane, that plane's pose
+    (:func:`~nmnet_ros.planes.plane_poses`). Of its two, the one whose translation direction is nearer ``motion``
+    (the pair before's; None when it had no pose: then the one nearer the robust fit's) is taken, and the other kept
+    as ``alternative``: the published covariance covers both."""
+    poses = plane_poses(x0n, x1n, focal)
+    if not poses:
+        return pose
+    poses.sort(key=lambda p: direction_angle_deg(p.t, pose.t if motion is None else motion))
+    inliers = pose.inliers
+    chosen = replace(poses[0], inliers=inliers)
+    return chosen if len(poses) == 1 else replace(chosen, alternative=replace(poses[-1], inliers=inliers))

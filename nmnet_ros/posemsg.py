@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .datasets import quat_to_rot
-from .geometry import PoseEstimate
+from .geometry import PoseEstimate, rotation_error_deg
 
 ROT_SIGMA_DEG = 0.5  # per-axis rotation sigma at REF_MATCHES selected matches (the node's pose_sigma_rotation_deg)
 ROT_SIGMA_RAD = np.radians(ROT_SIGMA_DEG)
@@ -50,7 +50,9 @@ def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches
     ``sigmas``: (rotation degrees, direction) per axis at REF_MATCHES selected matches, scaled by
     sqrt(REF_MATCHES / num_matches).
 
-    ``ok``: the estimate. ``no_motion`` (a camera that turned or stood without a measurable baseline): its
+    ``ok``: the estimate; when the matches lie on one plane and a second pose fits them as well
+    (``pose.alternative``), each variance is at least the squared distance to that pose (radians; the chord between
+    the directions). ``no_motion`` (a camera that turned or stood without a measurable baseline): its
     rotation (the identity when ``pose`` is None) with zero translation, the rotation covariance and a tiny
     translation variance. Any other status: the identity with NO_ESTIMATE_VAR on every axis.
     """
@@ -63,12 +65,20 @@ def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches
         cov[:3, :3] = np.eye(3) * 1e-6
         cov[3:, 3:] = np.eye(3) * rot_var
         return (rot_to_quat(pose.R.T) if pose is not None else np.array([0.0, 0.0, 0.0, 1.0])), np.zeros(3), cov
-    R_pc = pose.R.T
-    t_pc = -pose.R.T @ pose.t
-    t_pc = t_pc / max(np.linalg.norm(t_pc), 1e-12)
+    R_pc, t_pc = _of_current(pose)
+    if (other := pose.alternative) is not None:  # a plane's two poses: the covariance reaches the other one
+        R_alt, t_alt = _of_current(other)
+        rot_var = max(rot_var, np.radians(rotation_error_deg(R_pc, R_alt)) ** 2)
+        dir_var = max(dir_var, float(np.sum((t_pc - t_alt) ** 2)))
     cov[:3, :3] = np.eye(3) * dir_var
     cov[3:, 3:] = np.eye(3) * rot_var
     return rot_to_quat(R_pc), t_pc, cov
+
+
+def _of_current(pose: PoseEstimate) -> tuple[np.ndarray, np.ndarray]:
+    """T_prev_cur's rotation and unit translation of a pose x_cur = R x_prev + t."""
+    t_pc = -pose.R.T @ pose.t
+    return pose.R.T, t_pc / max(np.linalg.norm(t_pc), 1e-12)
 
 
 def estimate_of_message(q_xyzw: np.ndarray, position: np.ndarray, covariance: np.ndarray) -> tuple[str, PoseEstimate | None]:

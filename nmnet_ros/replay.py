@@ -30,6 +30,7 @@ from .mcap_out import McapOutput
 from .model import load_model
 from .params import PARAMS, SELECTORS, check_value, frontend_config, pose_sigmas, read_params_file
 from .pipeline import RESTARTS, FrameResult, Frontend, stamp_order, stamp_warning
+from .planes import NOTE as PLANE_NOTE
 from .tracks import TrackLengths
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
@@ -254,6 +255,8 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
                 continue
             fe.camera = cam
             r = fe.process(f.image, f.stamp)
+            if r.pose is not None and r.pose.alternative is not None:
+                notes("plane_ambiguous", f"frame at {f.stamp:.3f}: {PLANE_NOTE} (as the node does)")
             run.add(r, None if truth is None else truth.at(f.stamp))
             want_overlay = overlay is None and r.status == "ok"
             dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if debug_images or want_overlay else None

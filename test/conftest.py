@@ -53,3 +53,30 @@ def robust_cost(pose, x0: np.ndarray, x1: np.ndarray, sigma: float) -> float:
     Ex0, Etx1 = h0 @ E.T, h1 @ E
     r2 = np.sum(h1 * Ex0, 1) ** 2 / (Ex0[:, 0] ** 2 + Ex0[:, 1] ** 2 + Etx1[:, 0] ** 2 + Etx1[:, 1] ** 2)
     return float(np.sum(np.log1p(r2 / sigma**2)))
+
+
+def planar_views(seed: int, frames: int = 4) -> tuple[object, list[tuple[np.ndarray, np.ndarray]]]:
+    """A camera moving at constant velocity before a plane 5 m away, textured with Strecha fountain's first frame
+    (each view its homography K (R + t n^T / d) K^-1 of that frame): the camera, and per view (image, T_WC).
+    ``seed`` draws the plane's tilt, the turn per frame (~1 deg) and the direction of the 0.25 m steps."""
+    import cv2
+
+    from nmnet_ros.datasets import Sequence
+
+    seq = Sequence.load(data_dir("strecha-fountain-p11"))
+    img, K = seq.image(0), seq.camera.K
+    rng = np.random.default_rng(seed)
+    n = np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.3, 3)
+    n /= np.linalg.norm(n)
+    step = cv2.Rodrigues(rng.normal(0, 0.02, 3))[0]
+    v = rng.normal(0, 1, 3)
+    v *= 0.25 / np.linalg.norm(v)
+    views, R_wc = [], np.eye(3)
+    for k in range(frames):
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R_wc, k * v  # camera k in camera 0's frame
+        R, t = R_wc.T, -R_wc.T @ (k * v)  # x_k = R x_0 + t
+        H = K @ (R + np.outer(t, n) / 5.0) @ np.linalg.inv(K)
+        views.append((cv2.warpPerspective(img, H, img.shape[1::-1]), T))
+        R_wc = R_wc @ step
+    return seq.camera, views

@@ -30,7 +30,7 @@ from nmnet_ros.bags import (
 from nmnet_ros.demo import SAMPLE_BAG
 from nmnet_ros.make_bag import make_bag
 
-from .conftest import ROOT, data_dir
+from .conftest import ROOT, data_dir, planar_views
 
 
 def nmnet(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
@@ -735,6 +735,38 @@ def test_replay_skips_frames_stamped_before_zero_and_still_writes_its_file(raw_b
     assert s["processed"] == 4 and s["dropped"] == 2 and s["warnings"]["negative_stamp"] == 2, s
     assert s["received"] == 6 and s["dropped_busy"] == 0, s  # neither lost on the way nor replaced while busy
     assert read_output(tmp_path / "live.mcap")["/nmnet_node/relative_pose"] == 4
+
+
+def test_a_replay_before_a_plane_says_so_and_records_a_covariance_reaching_the_planes_other_pose(tmp_path):
+    """Views of a plane (a wall, flat ground) made into a bag: each pair's two poses are said (once per kind, then
+    counted, as the node's warn_plane_ambiguous), and the recorded relative poses carry a direction sigma that
+    reaches the other one (above 0.3, where a pair with depth gets 0.02-0.05)."""
+    import cv2
+    from rosbags.highlevel import AnyReader
+
+    from nmnet_ros.posemsg import rot_to_quat
+
+    cam, views = planar_views(seed=5, frames=5)
+    seq = tmp_path / "wall"
+    (seq / "images").mkdir(parents=True)
+    shutil.copy(data_dir("strecha-fountain-p11") / "camera.yaml", seq / "camera.yaml")
+    rows, gt = [], []
+    for k, (img, T) in enumerate(views):
+        cv2.imwrite(str(seq / "images" / f"{k}.png"), img)
+        rows.append(f"{0.1 * k:.1f} images/{k}.png")
+        gt.append(" ".join(f"{v:.9f}" for v in (0.1 * k, *T[:3, 3], *rot_to_quat(T[:3, :3]))))
+    (seq / "images.txt").write_text("\n".join(rows) + "\n")
+    (seq / "groundtruth.txt").write_text("\n".join(gt) + "\n")
+    assert make_bag(seq, tmp_path / "bag", "mcap") == 5
+    r, s = replay_json(tmp_path / "bag", tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "the matches lie on one plane (a wall, flat ground), which two poses fit as well" in r.stdout, r.stdout
+    assert s["warnings"] == {"plane_ambiguous": 4} and s["status"] == {"first_frame": 1, "ok": 4}, s
+    assert s["median_trans_deg"] < 2.0, s  # this sequence's first pair took the true one: it is kept
+    with AnyReader([tmp_path / "o.mcap"]) as reader:
+        sigmas = [np.sqrt(reader.deserialize(raw, c.msgtype).pose.covariance[0]) for c, _, raw in reader.messages()
+                  if c.topic.endswith("relative_pose")]
+    assert len(sigmas) == 5 and all(0.3 < d < 1.0 for d in sigmas[1:]), sigmas
 
 
 def test_ground_truth_poses_that_are_not_numbers_are_a_gap_not_pairs_scored_against_nan(raw_bag, tmp_path):

@@ -15,7 +15,7 @@ from nmnet_ros.geometry import rotation_error_deg
 from nmnet_ros.imgconv import matches_of_cloud
 from nmnet_ros.params import read_params_file
 
-from .conftest import ROOT, data_dir
+from .conftest import ROOT, data_dir, planar_views
 from .rosharness import NodeProcess, camera_info_msg, compressed_msg, image_msg, launch_node_args, ros_env, spin_until, unique_domain
 
 rclpy = pytest.importorskip("rclpy")
@@ -335,6 +335,22 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
                    "frame stamp -2.000000 is negative: skipped (ROS time starts at 0"):
         assert needle in out, f"no clear warning containing {needle!r}:\n{out}"
 
+
+
+def test_a_camera_before_a_plane_is_said_in_diagnostics_and_its_covariance(ros, tmp_path):
+    """Views of a plane (a wall, flat ground): the node counts warn_plane_ambiguous in /diagnostics and its
+    ~/relative_pose carries a direction sigma that reaches the plane's other pose (above 0.3; 0.02-0.05 with depth)."""
+    cam, views = planar_views(seed=5, frames=3)
+    info = camera_info_msg(cam.K, cam.dist, cam.width, cam.height)
+    with node_and_peer(ros, tmp_path, ["--ros-args", "-p", "max_keypoints:=1000"]) as (_, peer):
+        peer.wait_connected()
+        peer.first_frame(info, image_msg(views[0][0], 1.0))
+        for k in (1, 2):
+            peer.pub_info.publish(info)
+            peer.pub_img.publish(image_msg(views[k][0], 1.0 + 0.1 * k))
+            msg = peer.pose_for(1.0 + 0.1 * k, timeout=30.0)
+            assert msg is not None and 0.3 < np.sqrt(msg.pose.covariance[0]) < 1.0, k
+        assert wait_diag(peer, "warn_plane_ambiguous", 2), peer.diag_values()
 
 
 def test_the_diagnostics_level_is_warn_while_warnings_are_recent_and_ok_again_after():

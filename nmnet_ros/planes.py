@@ -1,0 +1,57 @@
+"""A plane's second pose: when the matches a pose rests on lie on one plane, two relative poses explain them.
+
+Two views of a plane fit two poses equally well (the twofold ambiguity of the plane's homography; Longuet-Higgins
+1986, Malis & Vargas 2007). The five-point solver, MAGSAC++ and the cheirality check then pick one of them by
+noise: a camera facing a wall, or a drone over flat ground, got a translation direction 37-88 degrees off in a
+quarter to half of synthetic planar pairs (a Strecha frame on a plane 5 m away), with nothing to say so. Here the
+homography of the pose's inliers is decomposed into the plane's poses; the front end picks the one nearer the
+camera's previous motion and publishes a covariance that covers both.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .geometry import PoseEstimate, essential_from_pose
+
+SUPPORT_PX = 0.5  # a match lies on the plane within this transfer error (pixels)
+PLANAR_SHARE = 0.8  # the pose's inliers lie on one plane when at least this share of them does
+MIN_PARALLAX_PX = 2.0  # a plane solution whose baseline moves points by less than this (focal x |t|/d) is not taken
+MIN_INLIERS = 12
+NOTE = ("the matches lie on one plane (a wall, flat ground), which two poses fit as well: published is the one nearer "
+        "the previous motion, with a covariance that reaches the other")  # the node's and the replay's warning
+PLANE_DRAWS = 100
+
+
+def direction_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two translation directions in degrees, signs counted (0 .. 180)."""
+    a, b = np.ravel(a), np.ravel(b)
+    c = float(np.dot(a, b) / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def plane_poses(a: np.ndarray, b: np.ndarray, focal: float, px: float = SUPPORT_PX) -> list[PoseEstimate]:
+    """The poses of the plane the correspondences ``a`` -> ``b`` (normalised; a pose's inliers) lie on: the
+    decomposition of their homography into the solutions that keep PLANAR_SHARE of the points in front of both
+    cameras (one or two). Empty when fewer than PLANAR_SHARE of them lie on one plane (within ``px`` pixels, ``focal`` in pixels),
+    or when the baseline is too short against the plane's distance to say where the camera went."""
+    if len(a) < MIN_INLIERS:
+        return []
+    # at PLANAR_SHARE inliers a 4-point sample is clean 41 % of the time: 100 draws miss a plane with p < 1e-22,
+    # and a scene with depth (where the draws find no consensus) costs 100 draws, not the 2000 of the default
+    H, on_plane = cv2.findHomography(a, b, cv2.USAC_MAGSAC, px / focal, maxIters=PLANE_DRAWS)
+    if H is None or on_plane.mean() < PLANAR_SHARE:
+        return []
+    _, rotations, translations, normals = cv2.decomposeHomographyMat(H, np.eye(3))
+    h0, h1 = np.c_[a, np.ones(len(a))], np.c_[b, np.ones(len(b))]
+    poses = []
+    for R, t, n in zip(rotations, translations, normals, strict=True):
+        t, n = t.ravel(), n.ravel()  # the plane n.X = 1 in camera 0; |t| = baseline / the plane's distance
+        if focal * np.linalg.norm(t) < MIN_PARALLAX_PX or 1.0 + (R @ n) @ t <= 0:  # camera 1 behind the plane
+            continue
+        in_front = ((h0 @ n > 0) & (h1 @ (R @ n) > 0)).mean()  # the points on the plane in front of both cameras
+        if in_front >= PLANAR_SHARE:
+            t = t / np.linalg.norm(t)
+            poses.append(PoseEstimate(R=R, t=t, E=essential_from_pose(R, t), inliers=np.ones(len(a), bool)))
+    return poses
