@@ -2,10 +2,10 @@
 
 Two views of a plane fit two poses equally well (the twofold ambiguity of the plane's homography; Longuet-Higgins
 1986, Malis & Vargas 2007). The five-point solver, MAGSAC++ and the cheirality check then pick one of them by
-noise: a camera facing a wall, or a drone over flat ground, got a translation direction 37-88 degrees off in a
-quarter to half of synthetic planar pairs (a Strecha frame on a plane 5 m away), with nothing to say so. Here the
-homography of the pose's inliers is decomposed into the plane's poses; the front end picks the one nearer the
-camera's previous motion and publishes a covariance that covers both.
+noise: a camera facing a wall, or a drone over flat ground, got a translation direction 26-84 degrees off in 8 of
+12 synthetic planar pairs (a Strecha frame on a plane 5 m away, test/test_planes.py), with nothing to say so.
+Here the homography of the pose's inliers is decomposed into the plane's poses; the front end picks the one
+nearer the camera's previous motion and publishes a covariance that covers both.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ SUPPORT_PX = 0.5  # a match lies on the plane within this transfer error (pixels
 PLANAR_SHARE = 0.8  # the pose's inliers lie on one plane when at least this share of them does
 MIN_PARALLAX_PX = 2.0  # a plane solution whose baseline moves points by less than this (focal x |t|/d) is not taken
 MIN_INLIERS = 12
+PLANE_DRAWS = 100  # homography samples (see plane_poses)
 NOTE = ("the matches lie on one plane (a wall, flat ground), which two poses fit as well: published is the one nearer "
         "the previous motion, with a covariance that reaches the other")  # the node's and the replay's warning
-PLANE_DRAWS = 100
 
 
 def direction_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -34,8 +34,9 @@ def direction_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 def plane_poses(a: np.ndarray, b: np.ndarray, focal: float, px: float = SUPPORT_PX) -> list[PoseEstimate]:
     """The poses of the plane the correspondences ``a`` -> ``b`` (normalised; a pose's inliers) lie on: the
     decomposition of their homography into the solutions that keep PLANAR_SHARE of the points in front of both
-    cameras (one or two). Empty when fewer than PLANAR_SHARE of them lie on one plane (within ``px`` pixels, ``focal`` in pixels),
-    or when the baseline is too short against the plane's distance to say where the camera went."""
+    cameras (one or two). Empty when fewer than PLANAR_SHARE of them lie on one plane (within ``px`` pixels,
+    ``focal`` in pixels), or when the baseline is too short against the plane's distance to say where the camera
+    went."""
     if len(a) < MIN_INLIERS:
         return []
     # at PLANAR_SHARE inliers a 4-point sample is clean 41 % of the time: 100 draws miss a plane with p < 1e-22,
