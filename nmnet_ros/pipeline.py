@@ -26,7 +26,7 @@ from .features import Detector, Features
 from .geometry import Camera, PoseEstimate, essential_from_pose, fit_rotation, sampson_distance, scale_pixels
 from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
-from .planes import direction_angle_deg, plane_poses
+from .planes import direction_angle_deg, plane_candidates
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, Selection, build
 from .tracks import NO_TRACK, continue_tracks
@@ -349,14 +349,14 @@ class Frontend:
 
 def one_of_a_plane(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, focal: float,
                    motion: np.ndarray | None) -> PoseEstimate:
-    """``pose``, or when its matches (``x0n``, ``x1n``: its inliers, normalised) lie on one plane, that plane's pose
-    (:func:`~nmnet_ros.planes.plane_poses`). Of its two, the one whose translation direction is nearer ``motion``
-    (the pair before's; None when it had no pose: then the one nearer the robust fit's) is taken, and the other kept
-    as ``alternative``: the published covariance covers both."""
-    poses = plane_poses(x0n, x1n, focal)
+    """``pose``, or when its matches (``x0n``, ``x1n``: its inliers, normalised) lie on one plane, the plane's pose
+    (:func:`~nmnet_ros.planes.plane_candidates`). Of two, the one whose translation direction is nearer ``motion``
+    (the pair before's; None when it had no pose: then the one nearer the robust fit's), with the other as
+    ``alternative``: the published covariance covers both."""
+    poses = plane_candidates(pose, x0n, x1n, focal)
     if not poses:
         return pose
-    poses.sort(key=lambda p: direction_angle_deg(p.t, pose.t if motion is None else motion))
-    inliers = pose.inliers
-    chosen = replace(poses[0], inliers=inliers)
-    return chosen if len(poses) == 1 else replace(chosen, alternative=replace(poses[-1], inliers=inliers))
+    near = pose.t if motion is None else motion
+    chosen, *other = sorted(poses, key=lambda p: direction_angle_deg(p.t, near))
+    return replace(chosen, inliers=pose.inliers,
+                   alternative=replace(other[0], inliers=pose.inliers) if other else None)

@@ -13,10 +13,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .geometry import PoseEstimate, essential_from_pose
+from .geometry import PoseEstimate, essential_from_pose, sampson_distance
 
 SUPPORT_PX = 0.5  # a match lies on the plane within this transfer error (pixels)
 PLANAR_SHARE = 0.8  # the pose's inliers lie on one plane when at least this share of them does
+AMBIGUOUS_SUPPORT = 0.95  # a plane pose explains at least this share of what the robust fit's pose explains
 MIN_PARALLAX_PX = 2.0  # a plane solution whose baseline moves points by less than this (focal x |t|/d) is not taken
 MIN_INLIERS = 12
 PLANE_DRAWS = 100  # homography samples (see plane_poses)
@@ -41,7 +42,7 @@ def plane_poses(a: np.ndarray, b: np.ndarray, focal: float, px: float = SUPPORT_
         return []
     # at PLANAR_SHARE inliers a 4-point sample is clean 41 % of the time: 100 draws miss a plane with p < 1e-22,
     # and a scene with depth (where the draws find no consensus) costs 100 draws, not the 2000 of the default
-    H, on_plane = cv2.findHomography(a, b, cv2.USAC_MAGSAC, px / focal, maxIters=PLANE_DRAWS)
+    H, on_plane = cv2.findHomography(a, b, cv2.RANSAC, px / focal, maxIters=PLANE_DRAWS)
     if H is None or on_plane.mean() < PLANAR_SHARE:
         return []
     _, rotations, translations, normals = cv2.decomposeHomographyMat(H, np.eye(3))
@@ -56,3 +57,18 @@ def plane_poses(a: np.ndarray, b: np.ndarray, focal: float, px: float = SUPPORT_
             t = t / np.linalg.norm(t)
             poses.append(PoseEstimate(R=R, t=t, E=essential_from_pose(R, t), inliers=np.ones(len(a), bool)))
     return poses
+
+
+def support(pose: PoseEstimate, a: np.ndarray, b: np.ndarray, focal: float, px: float = SUPPORT_PX) -> int:
+    """How many correspondences (normalised) lie within ``px`` Sampson pixels of ``pose``."""
+    return int((sampson_distance(essential_from_pose(pose.R, pose.t), a, b) * focal < px).sum())
+
+
+def plane_candidates(pose: PoseEstimate, a: np.ndarray, b: np.ndarray, focal: float) -> list[PoseEstimate]:
+    """The plane's poses that explain ``pose``'s inliers (``a``, ``b``, normalised) about as well as ``pose`` does
+    (AMBIGUOUS_SUPPORT), when they lie on one plane: none (no plane, or matches off it that only ``pose``
+    explains: it stands), one (the plane's other pose would put points behind a camera: this one is the pose,
+    where the essential matrix's may not be: on synthetic views of a plane MAGSAC++ returned one 92 degrees off that
+    every point supported), or two (two views cannot tell them apart)."""
+    own = support(pose, a, b, focal)
+    return [p for p in plane_poses(a, b, focal) if support(p, a, b, focal) >= AMBIGUOUS_SUPPORT * own]

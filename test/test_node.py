@@ -342,12 +342,13 @@ def test_a_camera_before_a_plane_is_said_in_diagnostics_and_its_covariance(ros, 
     ~/relative_pose carries a direction sigma that reaches the plane's other pose (above 0.3; 0.02-0.05 with depth)."""
     cam, views = planar_views(seed=5, frames=3)
     info = camera_info_msg(cam.K, cam.dist, cam.width, cam.height)
-    with node_and_peer(ros, tmp_path, ["--ros-args", "-p", "max_keypoints:=1000"]) as (_, peer):
+    mono = [cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) for img, _ in views]  # 393 KB: a 1.2 MB bgr8 frame is often lost
+    with node_and_peer(ros, tmp_path, ["--ros-args", "-p", "max_keypoints:=1000"]) as (_, peer):  # on best effort
         peer.wait_connected()
-        peer.first_frame(info, image_msg(views[0][0], 1.0))
+        peer.first_frame(info, image_msg(mono[0], 1.0))
         for k in (1, 2):
             peer.pub_info.publish(info)
-            peer.pub_img.publish(image_msg(views[k][0], 1.0 + 0.1 * k))
+            peer.pub_img.publish(image_msg(mono[k], 1.0 + 0.1 * k))
             msg = peer.pose_for(1.0 + 0.1 * k, timeout=30.0)
             assert msg is not None and 0.3 < np.sqrt(msg.pose.covariance[0]) < 1.0, k
         assert wait_diag(peer, "warn_plane_ambiguous", 2), peer.diag_values()

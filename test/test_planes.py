@@ -7,7 +7,7 @@ import pytest
 from nmnet_ros.datasets import Sequence
 from nmnet_ros.geometry import relative_pose, rotation_error_deg
 from nmnet_ros.pipeline import Frontend, one_of_a_plane
-from nmnet_ros.planes import direction_angle_deg, plane_poses
+from nmnet_ros.planes import direction_angle_deg, plane_candidates, plane_poses
 from nmnet_ros.posemsg import relative_pose_of_current
 
 from .conftest import data_dir, planar_views
@@ -18,38 +18,62 @@ def errors(pose, R: np.ndarray, t: np.ndarray) -> tuple[float, float]:
     return rotation_error_deg(pose.R, R), direction_angle_deg(pose.t, t)
 
 
-def test_a_plane_has_two_poses_and_a_scene_with_depth_none():
-    """Planar views: the selected matches give the plane's two poses, one of them the true one. Real pairs with
-    depth (Strecha entry, KITTI-07 validation frames, forward motion with 11-47 % of the matches on one plane):
-    none, so the front end is unchanged there."""
-    cam, views = planar_views(seed=7, frames=2)
+def second_frame(cam, first: np.ndarray, second: np.ndarray):
+    """The front end's result for ``second`` after ``first``, and its pose's inliers normalised."""
     fe = Frontend(cam, {})
-    fe.process(views[0][0], 0.0)
-    r = fe.process(views[1][0], 0.1)
-    poses = plane_poses(cam.normalize(r.k0[r.mask]), cam.normalize(r.k1[r.mask]), cam.focal)
-    R, t = relative_pose(views[0][1], views[1][1])
+    fe.process(first, 0.0)
+    r = fe.process(second, 0.1)
+    return r, cam.normalize(r.k0[r.mask]), cam.normalize(r.k1[r.mask])
+
+
+@pytest.fixture(scope="module")
+def wall():
+    """Two views of a plane: (camera, the second view's result, its inliers x0, x1, the true R, t)."""
+    cam, views = planar_views(seed=7, frames=2)
+    r, x0, x1 = second_frame(cam, views[0][0], views[1][0])
+    return cam, r, x0, x1, *relative_pose(views[0][1], views[1][1])
+
+
+def test_a_plane_has_two_poses_and_a_scene_with_depth_none(wall):
+    """Planar views: the selected matches give the plane's two poses, one of them the true one. Real pairs with
+    depth (Strecha entry's facade with 73 % of the matches on one plane, KITTI-07 validation frames): none, so the
+    front end is unchanged there."""
+    cam, r, x0, x1, R, t = wall
+    poses = plane_poses(x0, x1, cam.focal)
     errs = sorted(errors(p, R, t) for p in poses)
     print(f"{len(poses)} plane poses, errors (rotation, direction) {errs}")
     assert len(poses) == 2 and errs[0][0] < 0.5 and errs[0][1] < 3.0 and errs[1][1] > 30.0
     for name, pair in (("strecha-entry-p10", (2, 3)), ("kitti-07", (130, 131)), ("kitti-07", (140, 144))):
         seq = Sequence.load(data_dir(name))
-        fe = Frontend(seq.camera, {})
-        fe.process(seq.image(pair[0]), 0.0)
-        r = fe.process(seq.image(pair[1]), 0.1)
+        r, x0, x1 = second_frame(seq.camera, seq.image(pair[0]), seq.image(pair[1]))
         assert r.status == "ok" and r.pose.alternative is None, (name, pair)
-        assert plane_poses(seq.camera.normalize(r.k0[r.mask]), seq.camera.normalize(r.k1[r.mask]), seq.camera.focal) == []
+        assert plane_poses(x0, x1, seq.camera.focal) == []
 
 
-def test_the_plane_pose_nearer_the_previous_motion_is_taken():
+def test_matches_off_the_plane_tell_its_two_poses_apart(wall):
+    """A plane with some depth beside it (a wall and a doorway, ground and a kerb): 8 % more matches off the plane,
+    at 2-20 m, consistent with the true motion. The plane's two poses are still found (most matches lie on it), but
+    only the true one explains the matches off the plane too: it is the one candidate, and no alternative is kept;
+    the plane alone has two."""
+    cam, r, x0, x1, R, t = wall
+    assert len(plane_candidates(r.pose, x0, x1, cam.focal)) == 2
+    rng = np.random.default_rng(0)
+    n = len(x0) * 8 // 100
+    X = np.c_[rng.uniform(-0.4, 0.4, (n, 2)), np.ones(n)] * rng.uniform(2.0, 20.0, (n, 1))  # in view, off the plane
+    Y = X @ R.T + t
+    off0, off1 = X[:, :2] / X[:, 2:], Y[:, :2] / Y[:, 2:]
+    a, b = np.r_[x0, off0], np.r_[x1, off1]
+    true_one = min(plane_poses(a, b, cam.focal), key=lambda p: direction_angle_deg(p.t, t))
+    assert len(plane_poses(a, b, cam.focal)) == 2
+    assert [direction_angle_deg(p.t, t) < 1.0 for p in plane_candidates(true_one, a, b, cam.focal)] == [True]
+    assert direction_angle_deg(one_of_a_plane(true_one, a, b, cam.focal, None).t, true_one.t) < 1e-6
+
+
+def test_the_plane_pose_nearer_the_previous_motion_is_taken(wall):
     """Of a plane's two poses, the one whose direction is nearer the motion before (the pair before's) is published,
     whichever the robust fit found; without a motion before, the one nearer the robust fit's."""
-    cam, views = planar_views(seed=7, frames=2)
-    fe = Frontend(cam, {})
-    fe.process(views[0][0], 0.0)
-    r = fe.process(views[1][0], 0.1)
-    R, t = relative_pose(views[0][1], views[1][1])
-    x0, x1 = cam.normalize(r.k0[r.mask]), cam.normalize(r.k1[r.mask])
-    true_one, other = sorted(plane_poses(x0, x1, cam.focal), key=lambda p: direction_angle_deg(p.t, t))
+    cam, r, x0, x1, R, t = wall
+    true_one, other = sorted(plane_candidates(r.pose, x0, x1, cam.focal), key=lambda p: direction_angle_deg(p.t, t))
     for motion, want in ((t, true_one), (other.t, other)):
         chosen = one_of_a_plane(r.pose, x0, x1, cam.focal, motion)
         assert direction_angle_deg(chosen.t, want.t) < 1e-6 and chosen.alternative is not None
