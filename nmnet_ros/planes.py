@@ -65,10 +65,12 @@ def support(pose: PoseEstimate, a: np.ndarray, b: np.ndarray, focal: float, px: 
 
 
 def plane_candidates(pose: PoseEstimate, a: np.ndarray, b: np.ndarray, focal: float) -> list[PoseEstimate]:
-    """The plane's poses that explain ``pose``'s inliers (``a``, ``b``, normalised) about as well as ``pose`` does
-    (AMBIGUOUS_SUPPORT), when they lie on one plane: none (no plane, or matches off it that only ``pose``
+    """The plane's poses that explain ``pose``'s inliers (``a``, ``b``, normalised) about as well (AMBIGUOUS_SUPPORT)
+    as the best of ``pose`` and them, when they lie on one plane: none (no plane, or matches off it that only ``pose``
     explains: it stands), one (the plane's other pose would put points behind a camera: this one is the pose,
     where the essential matrix's may not be: on synthetic views of a plane MAGSAC++ returned one 92 degrees off that
     every point supported), or two (two views cannot tell them apart)."""
-    own = support(pose, a, b, focal)
-    return [p for p in plane_poses(a, b, focal) if support(p, a, b, focal) >= AMBIGUOUS_SUPPORT * own]
+    poses = plane_poses(a, b, focal)
+    counts = [support(p, a, b, focal) for p in poses]
+    best = max([support(pose, a, b, focal), *counts])
+    return [p for p, n in zip(poses, counts, strict=True) if n >= AMBIGUOUS_SUPPORT * best]
