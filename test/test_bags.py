@@ -773,24 +773,27 @@ def test_ground_truth_poses_that_are_not_numbers_are_a_gap_not_pairs_scored_agai
     """A motion-capture stream that loses the body publishes NaN (or a zero quaternion). Those poses are left out,
     said once, and the frames at them are scored on the poses around them. Before, the pairs touching them were taken
     for "without motion" with a NaN error, and 1 pair of 5 was scored."""
-    n = [0]
+    n = {"/ground_truth/pose": 0, "/tf": 0}
 
     def lose_track(topic, msg):
-        if topic == "/ground_truth/pose":
-            n[0] += 1
-            if n[0] == 3:
-                msg.pose.position.x = float("nan")
-            if n[0] == 5:
-                q = msg.pose.orientation
+        if topic in n:  # the same frames lost on the pose topic and on /tf (world -> camera_gt)
+            n[topic] += 1
+            pose = msg.pose if topic == "/ground_truth/pose" else msg.transforms[0].transform
+            if n[topic] == 3:
+                (pose.position if topic == "/ground_truth/pose" else pose.translation).x = float("nan")
+            if n[topic] == 5:
+                q = pose.orientation if topic == "/ground_truth/pose" else pose.rotation
                 q.x = q.y = q.z = q.w = 0.0
         return msg
 
     rewrite_bag(raw_bag, tmp_path / "lost", lose_track)
-    r, s = replay_json(tmp_path / "lost", tmp_path)
-    assert r.returncode == 0 and "RuntimeWarning" not in r.stderr, r.stderr
-    assert ("warning: /ground_truth/pose: 2 of 6 ground-truth poses are not finite numbers (NaN, or a zero quaternion: "
-            "a lost track?): left out") in r.stdout, r.stdout
-    assert s["scored_pairs"] == 5 and s["still_pairs"] == 0 and s["median_trans_deg"] < 2.0, s
+    assert n == {"/ground_truth/pose": 6, "/tf": 6}
+    for source, extra in (("/ground_truth/pose", []), ("--gt-tf world:camera_gt", ["--gt-tf", "world:camera_gt"])):
+        r, s = replay_json(tmp_path / "lost", tmp_path, *extra)
+        assert r.returncode == 0 and "RuntimeWarning" not in r.stderr, r.stderr
+        assert (f"warning: {source}: 2 of 6 ground-truth poses are not finite numbers (NaN, or a zero quaternion: "
+                "a lost track?): left out") in r.stdout, r.stdout
+        assert s["scored_pairs"] == 5 and s["still_pairs"] == 0 and s["median_trans_deg"] < 2.0, s
 
 
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
