@@ -30,22 +30,26 @@ def continue_tracks(prev_ids: np.ndarray, idx: np.ndarray, scores: np.ndarray, n
     unused id. Of two matches sharing a current keypoint the better one goes on with it, the other gets an id used
     once; of two sharing a previous keypoint the better one continues its track, the other starts a new one.
     """
-    cur_ids = np.full(num_current, NO_TRACK, np.int64)
-    match_ids = np.empty(len(idx), np.int64)
     order = np.argsort(-np.asarray(scores, np.float64), kind="stable")  # best first
-    used_prev: set[int] = set()
-    for m in order:
-        i0, i1 = int(idx[m, 0]), int(idx[m, 1])
-        if cur_ids[i1] != NO_TRACK:  # the current keypoint went on with a better match: an id of its own, used once
-            match_ids[m], next_id = next_id, next_id + 1
-            continue
-        if prev_ids[i0] == NO_TRACK or i0 in used_prev:  # a track starts with this pair
-            match_ids[m], next_id = next_id, next_id + 1
-        else:
-            match_ids[m] = prev_ids[i0]
-        used_prev.add(i0)
-        cur_ids[i1] = match_ids[m]
-    return cur_ids, match_ids, next_id
+    i0, i1 = np.asarray(idx, np.int64)[order].T.reshape(2, -1)
+    keeps = _firsts(i1)  # the best match of each current keypoint goes on with it
+    first_of_prev = np.flatnonzero(keeps)[_firsts(i0[keeps])]  # of those, the best of each previous keypoint
+    goes_on = np.zeros(len(order), bool)
+    goes_on[first_of_prev] = prev_ids[i0[first_of_prev]] != NO_TRACK
+    ids = np.where(goes_on, prev_ids[i0], 0).astype(np.int64)
+    ids[~goes_on] = next_id + np.arange(int((~goes_on).sum()))  # new ids in score order
+    cur_ids = np.full(num_current, NO_TRACK, np.int64)
+    cur_ids[i1[keeps]] = ids[keeps]
+    match_ids = np.empty(len(order), np.int64)
+    match_ids[order] = ids
+    return cur_ids, match_ids, next_id + int((~goes_on).sum())
+
+
+def _firsts(a: np.ndarray) -> np.ndarray:
+    """Whether each element is the first of its value in ``a``."""
+    first = np.zeros(len(a), bool)
+    first[np.unique(a, return_index=True)[1]] = True
+    return first
 
 
 class TrackLengths:

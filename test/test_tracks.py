@@ -30,6 +30,36 @@ def test_a_keypoint_two_matches_share_goes_to_the_better_one():
     assert continue_tracks(prev_ids, np.zeros((0, 2), int), np.zeros(0), 3, 5)[2] == 5  # nothing selected: no ids
 
 
+def one_by_one(prev_ids: np.ndarray, idx: np.ndarray, scores: np.ndarray, num_current: int, next_id: int):
+    """continue_tracks' rule written out as a loop over the matches, best first (the loop it was until stop 36)."""
+    cur_ids, match_ids, used_prev = np.full(num_current, NO_TRACK, np.int64), np.empty(len(idx), np.int64), set()
+    for m in np.argsort(-np.asarray(scores, np.float64), kind="stable"):
+        i0, i1 = int(idx[m, 0]), int(idx[m, 1])
+        if cur_ids[i1] != NO_TRACK:
+            match_ids[m], next_id = next_id, next_id + 1
+            continue
+        if prev_ids[i0] == NO_TRACK or i0 in used_prev:
+            match_ids[m], next_id = next_id, next_id + 1
+        else:
+            match_ids[m] = prev_ids[i0]
+        used_prev.add(i0)
+        cur_ids[i1] = match_ids[m]
+    return cur_ids, match_ids, next_id
+
+
+def test_the_array_form_gives_the_rule_match_by_match():
+    """continue_tracks runs on whole arrays (0.06 ms for 600 matches instead of the loop's 0.39): on 2000 random
+    frame pairs, with shared keypoints and tied scores, it gives what the rule gives one match at a time."""
+    rng = np.random.default_rng(0)
+    for trial in range(2000):
+        n0, n1, m = rng.integers(1, 40), rng.integers(1, 40), rng.integers(0, 60)
+        prev_ids = np.where(rng.random(n0) < 0.5, rng.integers(0, 1000, n0), NO_TRACK).astype(np.int64)
+        idx = np.c_[rng.integers(0, n0, m), rng.integers(0, n1, m)]
+        scores = rng.choice([0.2, 0.5, 0.9], m) if trial % 2 else rng.random(m)
+        got, want = continue_tracks(prev_ids, idx, scores, n1, 2000), one_by_one(prev_ids, idx, scores, n1, 2000)
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1]) and got[2] == want[2], trial
+
+
 def test_the_matches_message_carries_the_ids_and_reads_back():
     k0, k1 = np.array([[1.5, 2.0], [3.0, 4.25]]), np.array([[5.0, 6.0], [7.0, 8.5]])
     f = matches_to_cloud_fields(k0, k1, np.array([0.9, 0.7]), np.array([12, 2**32 + 5]))
