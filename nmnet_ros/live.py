@@ -257,20 +257,24 @@ def recording_summary(path: Path, truth: Trajectory | None) -> tuple[dict, dict]
     first (the node's first frame, or a recording that starts later) relates to no frame here and is not scored.
     """
     pose_topic, matches_topic = f"/{NODE_NAME}/relative_pose", f"/{NODE_NAME}/matches"
-    estimates, stamps, tracks = [], [], TrackLengths()  # read as they come: a long recording is not held
+    scores, tracks = PairScores(), TrackLengths()  # scored and counted as they come: a long recording is not held
+    first = last = None  # the pose messages' first and last stamps
+    T_prev, any_truth = None, False
     for m in BagReader(path).messages({pose_topic, matches_topic}):
         if m.topic == matches_topic:
             tracks.add(matches_of_cloud(m.msg.point_step, m.msg.fields, m.msg.data)["track_id"])
-        else:
+            continue
+        last = m.log_time_ns / 1e9
+        if truth is None:
+            continue
+        T = truth.poses_at(last)[0]
+        T = None if np.isnan(T[0, 0]) else T
+        if first is not None:  # the first message relates to no frame here
             o, p = m.msg.pose.pose.orientation, m.msg.pose.pose.position
-            estimates.append(estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]),
-                                                 m.msg.pose.covariance))
-            stamps.append(m.log_time_ns / 1e9)
-    scores = PairScores()
-    if truth is not None:
-        if note := truth_missed(truth, stamps):
-            print(f"warning: {note}", file=sys.stderr)
-        gt = [None if np.isnan(T[0, 0]) else T for T in truth.poses_at(np.asarray(stamps))]  # each looked up once
-        for (status, pose), stamp, T_prev, T_cur in zip(estimates[1:], stamps[1:], gt, gt[1:], strict=False):
-            scores.add(status, pose, T_prev, T_cur, stamp)
+            scores.add(*estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]),
+                                            m.msg.pose.covariance), T_prev, T, last)
+        first = last if first is None else first
+        T_prev, any_truth = T, any_truth or T is not None
+    if first is not None and not any_truth and (note := truth_missed(truth, [first, last])):
+        print(f"warning: {note}", file=sys.stderr)
     return scores.summary(), tracks.summary()
