@@ -2,7 +2,7 @@
 
 Two views of a plane fit two poses equally well (the twofold ambiguity of the plane's homography; Longuet-Higgins
 1986, Malis & Vargas 2007). The five-point solver, MAGSAC++ and the cheirality check then pick one of them by
-noise: a camera facing a wall, or a drone over flat ground, got a translation direction 26-84 degrees off in 8 of
+noise: a camera facing a wall, or a drone over flat ground, got a translation direction 26-84 degrees off in 9 of
 12 synthetic planar pairs (a Strecha frame on a plane 5 m away, test/test_planes.py), with nothing to say so.
 Here the homography of the pose's inliers is decomposed into the plane's poses; the front end picks the one
 nearer the camera's previous motion and publishes a covariance that covers both.

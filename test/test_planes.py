@@ -88,7 +88,7 @@ def test_the_plane_pose_nearer_the_previous_motion_is_taken(wall):
 @pytest.mark.parametrize("seed", [0, 2, 4, 5])
 def test_a_camera_before_a_plane_keeps_one_of_its_poses_and_says_the_other(seed):
     """Four views of a plane at constant velocity. Before, each pair's pose was one of the plane's two, picked by
-    noise, and published with the usual covariance: 8 of these 12 pairs 26-84 degrees off. Now every pair has the
+    noise, and published with the usual covariance: 9 of these 12 pairs 26-84 degrees off. Now every pair has the
     plane's two (with these seeds both keep the points in front; with seed 6 only one does): after the first pair
     the one nearer the motion before is kept, so the same one throughout (6 of 12 off: the two sequences whose
     first pair took the other), the true pose is one of the two, and the published direction sigma reaches the
