@@ -297,6 +297,11 @@ def sampson_distance(E: np.ndarray, x0n: np.ndarray, x1n: np.ndarray) -> np.ndar
     return np.abs(_sampson(E, np.c_[x0n, np.ones(len(x0n))], np.c_[x1n, np.ones(len(x1n))])[0])
 
 
+def sampson_px(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, focal: float) -> np.ndarray:
+    """Sampson distance of every correspondence (normalised) to ``pose``'s epipolar geometry, in pixels."""
+    return sampson_distance(essential_from_pose(pose.R, pose.t), x0n, x1n) * focal
+
+
 def refine_pose(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, sigma: float,
                 iterations: int = 5) -> PoseEstimate:
     """Polish (R, t) by Levenberg-Marquardt on the Cauchy-robust Sampson error over all given matches.
@@ -385,13 +390,18 @@ def rotation_error_deg(R: np.ndarray, R_gt: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
+def direction_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two translation directions in degrees, signs counted (0 .. 180)."""
+    a, b = np.ravel(a), np.ravel(b)
+    c = float(np.dot(a, b) / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
 def translation_error_deg(t: np.ndarray, t_gt: np.ndarray) -> float:
     """Angle between translation directions, sign-agnostic: min(e, 180 - e)."""
-    t, t_gt = np.ravel(t), np.ravel(t_gt)
-    n = np.linalg.norm(t) * np.linalg.norm(t_gt)
-    if n < 1e-12:
+    if np.linalg.norm(t) * np.linalg.norm(t_gt) < 1e-12:
         return 180.0 if np.linalg.norm(t_gt) > 1e-12 else 0.0
-    e = float(np.degrees(np.arccos(np.clip(np.dot(t, t_gt) / n, -1.0, 1.0))))
+    e = direction_angle_deg(t, t_gt)
     return min(e, 180.0 - e)
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -23,10 +23,10 @@ from .bf16 import PRECISIONS
 from .detectors import DEFAULT_DETECTOR, make_detector
 from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from .features import Detector, Features
-from .geometry import Camera, PoseEstimate, essential_from_pose, fit_rotation, sampson_distance, scale_pixels
+from .geometry import Camera, PoseEstimate, fit_rotation, sampson_px, scale_pixels
 from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
-from .planes import direction_angle_deg, plane_candidates
+from .planes import one_of_a_plane
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import Correspondences, Selection, build
 from .tracks import NO_TRACK, continue_tracks
@@ -343,20 +343,4 @@ class Frontend:
         if not px:
             return sel.mask
         candidates = sel.candidates if sel.candidates is not None else sel.mask
-        E = essential_from_pose(pose.R, pose.t)
-        return candidates & (sampson_distance(E, corr.x0, corr.x1) * corr.focal < px)
-
-
-def one_of_a_plane(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, focal: float,
-                   motion: np.ndarray | None) -> PoseEstimate:
-    """``pose``, or when its matches (``x0n``, ``x1n``: its inliers, normalised) lie on one plane, the plane's pose
-    (:func:`~nmnet_ros.planes.plane_candidates`). Of two, the one whose translation direction is nearer ``motion``
-    (the pair before's; None when it had no pose: then the one nearer the robust fit's), with the other as
-    ``alternative``: the published covariance covers both."""
-    poses = plane_candidates(pose, x0n, x1n, focal)
-    if not poses:
-        return pose
-    near = pose.t if motion is None else motion
-    chosen, *other = sorted(poses, key=lambda p: direction_angle_deg(p.t, near))
-    return replace(chosen, inliers=pose.inliers,
-                   alternative=replace(other[0], inliers=pose.inliers) if other else None)
+        return candidates & (sampson_px(pose, corr.x0, corr.x1, corr.focal) < px)

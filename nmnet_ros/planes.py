@@ -10,10 +10,12 @@ nearer the camera's previous motion and publishes a covariance that covers both.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 
-from .geometry import PoseEstimate, essential_from_pose, sampson_distance
+from .geometry import PoseEstimate, direction_angle_deg, essential_from_pose, sampson_px
 
 SUPPORT_PX = 0.5  # a match lies on the plane within this transfer error (pixels)
 PLANAR_SHARE = 0.8  # the pose's inliers lie on one plane when at least this share of them does
@@ -23,13 +25,6 @@ MIN_INLIERS = 12
 PLANE_DRAWS = 100  # homography samples (see plane_poses)
 NOTE = ("the matches lie on one plane (a wall, flat ground), which two poses fit as well: published is the one nearer "
         "the previous motion, with a covariance that reaches the other")  # the node's and the replay's warning
-
-
-def direction_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle between two translation directions in degrees, signs counted (0 .. 180)."""
-    a, b = np.ravel(a), np.ravel(b)
-    c = float(np.dot(a, b) / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
 def plane_poses(a: np.ndarray, b: np.ndarray, focal: float, px: float = SUPPORT_PX) -> list[PoseEstimate]:
@@ -61,7 +56,7 @@ def plane_poses(a: np.ndarray, b: np.ndarray, focal: float, px: float = SUPPORT_
 
 def support(pose: PoseEstimate, a: np.ndarray, b: np.ndarray, focal: float, px: float = SUPPORT_PX) -> int:
     """How many correspondences (normalised) lie within ``px`` Sampson pixels of ``pose``."""
-    return int((sampson_distance(essential_from_pose(pose.R, pose.t), a, b) * focal < px).sum())
+    return int((sampson_px(pose, a, b, focal) < px).sum())
 
 
 def plane_candidates(pose: PoseEstimate, a: np.ndarray, b: np.ndarray, focal: float) -> list[PoseEstimate]:
@@ -71,6 +66,23 @@ def plane_candidates(pose: PoseEstimate, a: np.ndarray, b: np.ndarray, focal: fl
     where the essential matrix's may not be: on synthetic views of a plane MAGSAC++ returned one 92 degrees off that
     every point supported), or two (two views cannot tell them apart)."""
     poses = plane_poses(a, b, focal)
+    if not poses:  # the scene has depth (every real pair measured): nothing more to compute
+        return []
     counts = [support(p, a, b, focal) for p in poses]
     best = max([support(pose, a, b, focal), *counts])
     return [p for p, n in zip(poses, counts, strict=True) if n >= AMBIGUOUS_SUPPORT * best]
+
+
+def one_of_a_plane(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, focal: float,
+                   motion: np.ndarray | None) -> PoseEstimate:
+    """``pose``, or when its matches (``x0n``, ``x1n``: its inliers, normalised) lie on one plane, the plane's pose
+    (:func:`plane_candidates`). Of two, the one whose translation direction is nearer ``motion``
+    (the pair before's; None when it had no pose: then the one nearer the robust fit's), with the other as
+    ``alternative``: the published covariance covers both."""
+    poses = plane_candidates(pose, x0n, x1n, focal)
+    if not poses:
+        return pose
+    near = pose.t if motion is None else motion
+    chosen, *other = sorted(poses, key=lambda p: direction_angle_deg(p.t, near))
+    return replace(chosen, inliers=pose.inliers,
+                   alternative=replace(other[0], inliers=pose.inliers) if other else None)

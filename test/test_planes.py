@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from nmnet_ros.datasets import Sequence
-from nmnet_ros.geometry import relative_pose, rotation_error_deg
-from nmnet_ros.pipeline import Frontend, one_of_a_plane
-from nmnet_ros.planes import direction_angle_deg, plane_candidates, plane_poses
+from nmnet_ros.geometry import direction_angle_deg, relative_pose, rotation_error_deg
+from nmnet_ros.pipeline import Frontend
+from nmnet_ros.planes import one_of_a_plane, plane_candidates, plane_poses
 from nmnet_ros.posemsg import relative_pose_of_current
 
 from .conftest import data_dir, planar_views

@@ -20,7 +20,7 @@ import numpy as np
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
 from nmnet_ros.evaluate import load_eval_pairs
-from nmnet_ros.geometry import essential_from_pose, pose_auc, pose_error_deg, sampson_distance
+from nmnet_ros.geometry import pose_auc, pose_error_deg, sampson_px
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
 from nmnet_ros.pairs import to_correspondences
@@ -56,8 +56,8 @@ def main() -> None:
                     errors[name].append(max(pose_error_deg(sel.pose, p.R, p.t)))
             flow = np.linalg.norm(c.k1 - c.k0, axis=1)
             centre = np.abs(c.k0[:, 0] - c.size0[0] / 2) / (c.size0[0] / 2)
-            sampson_px = c.focal * sampson_distance(essential_from_pose(p.R, p.t), c.x0, c.x1)
-            for key, v in zip(stats, (flow, centre, c.ratio, sampson_px), strict=True):
+            px = sampson_px(p, c.x0, c.x1, c.focal)
+            for key, v in zip(stats, (flow, centre, c.ratio, px), strict=True):
                 stats[key].append((v[inl & selected], v[inl & ~selected]))
         print(f"\n{spec.rsplit('/', 1)[-1]}: AUC@5 of MAGSAC++ on subsets of the labelled inliers ({args.seeds} seeds)")
         for name in subsets:

@@ -16,7 +16,7 @@ import numpy as np
 from robust_variants import arguments, magsac, split_pairs
 
 from nmnet_ros.evaluate import paired_auc_difference, per_sequence_table
-from nmnet_ros.geometry import essential_from_pose, pose_error_deg, sampson_distance
+from nmnet_ros.geometry import pose_error_deg, sampson_px
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
 from nmnet_ros.selectors import classic_mask
@@ -45,7 +45,7 @@ def main() -> None:
         for seed in range(args.seeds):
             poses = {k: magsac(c, idx, idx, seed, False) for k, idx in inputs.items()}
             err = {k: max(pose_error_deg(pose, p.R, p.t)) for k, pose in poses.items()}
-            px = {k: None if pose is None else sampson_distance(essential_from_pose(pose.R, pose.t), c.x0, c.x1) * c.focal
+            px = {k: None if pose is None else sampson_px(pose, c.x0, c.x1, c.focal)
                   for k, pose in poses.items()}
             for k in inputs:
                 runs[k].append(err[k])
