@@ -435,7 +435,7 @@ class NMNetNode(Node):
                                     "static_parallax_px): publishing its rotation alone, with zero translation", period=30.0)
         elif r.status == "pose_failed":
             self._warn("pose_failed", "pose estimation failed on the selected matches")
-        elif r.pose is not None and r.pose.alternative is not None:
+        elif r.plane_ambiguous:
             self._warn("plane_ambiguous", PLANE_NOTE, period=30.0)
         sel = r.mask
         cloud = PointCloud2(header=header)

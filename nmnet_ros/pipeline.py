@@ -152,6 +152,11 @@ class FrameResult:
     def num_selected(self) -> int:
         return int(self.mask.sum())
 
+    @property
+    def plane_ambiguous(self) -> bool:
+        """The matches lie on a plane two poses fit alike; the pose carries the other (planes.py)."""
+        return self.pose is not None and self.pose.alternative is not None
+
 
 @dataclass
 class Prepared:
@@ -167,6 +172,12 @@ class Prepared:
     detector: Detector | None = None  # the detector that made ``feats``: frames of two detectors are never related
     camera: Camera | None = None  # the front end's camera when the frame was prepared (fitted to its size in the node)
     track_ids: np.ndarray | None = None  # per keypoint, once related (see tracks.py); None: in no track
+
+    def camera_detected(self, fallback: Camera) -> Camera:
+        """The camera of the frame as detected on: its own (set when prepared, else ``fallback``), scaled when
+        resize_width shrank the frame. Each frame has its own: a zoom camera's K changes frame to frame."""
+        cam = self.camera if self.camera is not None else fallback
+        return cam if self.size == self.full else cam.resized(*self.size, self.full)
 
 
 def related(a: Prepared, b: Prepared) -> bool:
@@ -294,10 +305,7 @@ class Frontend:
         fits = p.against is before and p.match_key == self._match_key()
         m = p.matches if fits else self._match(before, feats, timings)
         k0, k1 = before.keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
-        cam = camera if size == p.full else camera.resized(*size, p.full)
-        # each frame's keypoints through the camera it was taken with (a zoom camera's K changes frame to frame)
-        cam0 = prev[1].camera if prev[1].camera is not None else camera
-        cam0 = cam0 if size == p.full else cam0.resized(*size, p.full)
+        cam0, cam = prev[1].camera_detected(camera), p.camera_detected(camera)
         base = dict(k0=to_frame_pixels(k0, size, p.full), k1=to_frame_pixels(k1, size, p.full), timings_ms=timings,
                     num_keypoints=len(feats), scores=np.zeros(len(m), np.float32), mask=np.zeros(len(m), bool),
                     track_ids=np.full(len(m), NO_TRACK, np.int64))

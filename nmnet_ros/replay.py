@@ -255,7 +255,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
                 continue
             fe.camera = cam
             r = fe.process(f.image, f.stamp)
-            if r.pose is not None and r.pose.alternative is not None:
+            if r.plane_ambiguous:
                 notes("plane_ambiguous", f"frame at {f.stamp:.3f}: {PLANE_NOTE} (as the node does)")
             run.add(r, None if truth is None else truth.at(f.stamp))
             want_overlay = overlay is None and r.status == "ok"
