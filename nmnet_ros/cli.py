@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import sys
 from collections.abc import Callable
 
@@ -23,19 +24,25 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def whole(least: int) -> Callable[[str], int]:
-    """An argparse type: a whole number >= ``least``; argparse names the option when it is not."""
+def bounded(kind: type, least: float, expected: str, strict: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite number of ``kind`` (int or float) at least ``least``, above it when ``strict``;
+    otherwise argparse's error names the option, the value and what was ``expected``."""
 
-    def parse(text: str) -> int:
+    def parse(text: str) -> float:
         try:
-            value = int(text)
+            value = kind(text)
         except ValueError:
             value = None
-        if value is None or value < least:
-            raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number >= {least}")
+        if value is None or not math.isfinite(value) or (value <= least if strict else value < least):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {expected}")
         return value
 
     return parse
+
+
+def whole(least: int) -> Callable[[str], int]:
+    """An argparse type: a whole number >= ``least`` (a count)."""
+    return bounded(int, least, f"a whole number >= {least}")
 
 
 def gaps(text: str) -> tuple[int, ...]:

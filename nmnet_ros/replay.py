@@ -22,6 +22,7 @@ import numpy as np
 from .bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
+from .cli import bounded
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
@@ -496,25 +497,8 @@ def node_value(name: str) -> Callable[[str], object]:
     return parse
 
 
-def _finite(text: str, least: float, strict: bool, expected: str) -> float:
-    """An option's value as a finite number at least ``least`` (above it when ``strict``); else argparse's error."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not (least < value if strict else least <= value) or not value < float("inf"):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected {expected}")
-    return value
-
-
-def playback_rate(text: str) -> float:
-    """``--rate``'s value: a finite speed factor above 0 (0.5 plays at half the recorded speed)."""
-    return _finite(text, 0.0, True, "a speed factor > 0 (1 = as recorded, 0.5 = half speed)")
-
-
-def seconds(text: str) -> float:
-    """``--start``'s and ``--duration``'s value: a finite number of seconds, not negative."""
-    return _finite(text, 0.0, False, "seconds, a number >= 0")
+playback_rate = bounded(float, 0.0, "a speed factor > 0 (1 = as recorded, 0.5 = half speed)", strict=True)  # --rate
+seconds = bounded(float, 0.0, "seconds, a number >= 0")  # --start, --duration
 
 
 def replay_window(args: argparse.Namespace) -> tuple[float, float] | None:

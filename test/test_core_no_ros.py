@@ -45,13 +45,27 @@ def test_cli_lists_subcommands():
 def test_a_count_or_gap_out_of_range_is_refused_naming_the_option(argv, option, why, capsys):
     """The tools' counts and frame gaps are checked as they are parsed (exit 2, argparse's line naming the option)
     instead of failing later with Python's or numpy's message, or running on nothing."""
-    from nmnet_ros.cli import gaps, main
+    from nmnet_ros.cli import main
 
     with pytest.raises(SystemExit) as stop:
         main(argv)
     assert stop.value.code == 2
     assert f"argument {option}: {why}" in capsys.readouterr().err
+
+
+def test_the_number_types_take_what_they_should_and_nothing_else():
+    """cli.gaps' two forms; cli.bounded's bound (inclusive, or strict as --rate's) and its refusal of NaN and inf."""
+    import argparse
+
+    from nmnet_ros.cli import bounded, gaps, whole
+
     assert gaps("1-3") == (1, 2, 3) and gaps("1,5") == (1, 5) and gaps("4") == (4,)
+    assert whole(0)("0") == 0 and bounded(float, 0.0, "seconds")("0") == 0.0
+    rate = bounded(float, 0.0, "a speed factor > 0", strict=True)
+    assert rate("0.5") == 0.5
+    for bad in ("0", "-1", "nan", "inf", "fast"):
+        with pytest.raises(argparse.ArgumentTypeError, match=f"'{bad}': expected a speed factor > 0"):
+            rate(bad)
 
 
 # what a Python without rclpy and the message packages sees (arm64 with no ROS 2 sourced): their imports fail
