@@ -125,14 +125,22 @@ def quat_to_rot(q: np.ndarray) -> np.ndarray:
                      np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
+def _pose_problem(xyzq: list[float]) -> str | None:
+    """What makes 'x y z qx qy qz qw' no pose (None: nothing). NaN poses and zero quaternions are how some
+    exporters write a lost track: refused, not turned into pairs that silently drop out."""
+    if not np.all(np.isfinite(xyzq)):
+        return "a value that is not a finite number"
+    if np.linalg.norm(xyzq[3:]) < 1e-9:
+        return "a zero quaternion (qx qy qz qw all 0)"
+    return None
+
+
 def _pose_row(fields: list[str]) -> list[float]:
-    """A TUM row converter: eight finite numbers, the quaternion not zero (NaN poses and zero quaternions are how
-    some exporters write a lost track: refused, not turned into pairs that silently drop out)."""
+    """A TUM row converter: a stamp and a pose (:func:`_pose_problem`)."""
     row = _floats(8)(fields)
-    if not np.all(np.isfinite(row)):
-        raise Unfit("a value that is not a finite number")
-    if np.linalg.norm(row[4:8]) < 1e-9:
-        raise Unfit("a zero quaternion (qx qy qz qw all 0)")
+    why = _pose_problem(row[1:]) if np.isfinite(row[0]) else "a stamp that is not a finite number"
+    if why is not None:
+        raise Unfit(why)
     return row
 
 
@@ -156,7 +164,7 @@ def parse_pose(text: str) -> np.ndarray:
         v = [float(f) for f in text.replace(",", " ").split()]
     except ValueError:
         v = []
-    if len(v) != 7 or not np.all(np.isfinite(v)) or np.linalg.norm(v[3:]) < 1e-9:
+    if len(v) != 7 or _pose_problem(v) is not None:
         raise ValueError(f"{text!r}: expected 'x y z qx qy qz qw', seven numbers with a non-zero quaternion")
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = quat_to_rot(v[3:]), v[:3]

@@ -269,7 +269,8 @@ def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
     with pytest.raises(DatasetError, match=r"empty.txt: no poses; expected lines 'timestamp tx ty tz"):
         read_tum(tmp_path / "empty.txt")
     # a lost track written as NaN, or as a zero quaternion (a RuntimeWarning, then the frame's pairs silently dropped)
-    for n, cut, says in ((1, "nan", "a value that is not a finite number"), (4, "0 0 0 0", r"a zero quaternion \(qx qy qz qw all 0\)")):
+    for n, cut, says in ((1, "nan", "a value that is not a finite number"), (4, "0 0 0 0", r"a zero quaternion \(qx qy qz qw all 0\)"),
+                         (0, "inf", "a stamp that is not a finite number")):
         row = gt[2].split()
         row[n:n + len(cut.split())] = cut.split()
         (dst / "groundtruth.txt").write_text("\n".join(gt[:2] + [" ".join(row)] + gt[3:]) + "\n")
