@@ -34,15 +34,15 @@ def continue_tracks(prev_ids: np.ndarray, idx: np.ndarray, scores: np.ndarray, n
     i0, i1 = np.asarray(idx, np.int64)[order].T.reshape(2, -1)
     keeps = _firsts(i1)  # the best match of each current keypoint goes on with it
     first_of_prev = np.flatnonzero(keeps)[_firsts(i0[keeps])]  # of those, the best of each previous keypoint
-    goes_on = np.zeros(len(order), bool)
-    goes_on[first_of_prev] = prev_ids[i0[first_of_prev]] != NO_TRACK
-    ids = np.where(goes_on, prev_ids[i0], 0).astype(np.int64)
-    ids[~goes_on] = next_id + np.arange(int((~goes_on).sum()))  # new ids in score order
+    starts = np.ones(len(order), bool)
+    starts[first_of_prev] = prev_ids[i0[first_of_prev]] == NO_TRACK
+    ids = prev_ids[i0].astype(np.int64)  # a copy
+    ids[starts] = next_id + np.arange(int(starts.sum()))  # new ids in score order
     cur_ids = np.full(num_current, NO_TRACK, np.int64)
     cur_ids[i1[keeps]] = ids[keeps]
     match_ids = np.empty(len(order), np.int64)
     match_ids[order] = ids
-    return cur_ids, match_ids, next_id + int((~goes_on).sum())
+    return cur_ids, match_ids, next_id + int(starts.sum())
 
 
 def _firsts(a: np.ndarray) -> np.ndarray:
