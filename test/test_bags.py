@@ -795,6 +795,22 @@ def test_ground_truth_poses_that_are_not_numbers_are_a_gap_not_pairs_scored_agai
                 "a lost track?): left out") in r.stdout, r.stdout
         assert s["scored_pairs"] == 5 and s["still_pairs"] == 0 and s["median_trans_deg"] < 2.0, s
 
+    def lose_all(topic, msg):
+        if topic == "/ground_truth/pose":
+            msg.pose.position.x = float("nan")
+        elif topic == "/tf":
+            msg.transforms[0].transform.translation.x = float("nan")
+        return msg
+
+    rewrite_bag(raw_bag, tmp_path / "none", lose_all)  # a track lost throughout: nothing to score against
+    r, s = replay_json(tmp_path / "none", tmp_path, name="none")
+    assert r.returncode == 0 and "/ground_truth/pose: 6 of 6 ground-truth poses are not finite" in r.stdout, r.stdout
+    assert s["scored_pairs"] == 0 and s["processed"] == 6, s
+    r = nmnet("replay", str(tmp_path / "none"), "--out", str(tmp_path / "tf.mcap"), "--gt-tf", "world:camera_gt")
+    assert r.returncode == 2 and ("--gt-tf world:camera_gt: no transform from one to the other is a finite number"
+                                  in r.stderr), r.stderr
+    assert not (tmp_path / "tf.mcap").exists()
+
 
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     """`--gt FILE` (TUM) and `--gt-tf world:camera_gt` (the bag's /tf) give the numbers the bag's own PoseStamped

@@ -72,6 +72,8 @@ def test_k_is_inverted_with_its_skew_and_a_k_not_ending_in_0_0_1_is_refused():
     for last in ([0.0, 0.0, 2.0], [0.0, 0.0, 0.0], [320.0, 240.0, 1.0]):
         with pytest.raises(CameraError, match=r"K must be \[fx s cx; 0 fy cy; 0 0 1\], got rows 2-3"):
             Camera(np.vstack([K[:2], last]))
+    with pytest.raises(CameraError, match=r"got rows 2-3 \[5.0, 480.0, 240.0\] \[0.0, 0.0, 1.0\]"):
+        Camera(K + [[0, 0, 0], [5.0, 0, 0], [0, 0, 0]])  # rows in the wrong order, or a transposed K
 
 
 def test_frames_are_fitted_to_their_calibration():
