@@ -252,6 +252,35 @@ def test_fisheye_equidistant_normalisation_roundtrip():
     assert np.abs(plumb.normalize(px) - pts_n).max() > 0.01
 
 
+
+
+def test_strong_lens_is_undistorted_to_the_pixel_corners():
+    """EuRoC's cam0 (radtan, k1 = -0.28): every pixel, the corners too, normalises to a ray that projects back onto
+    it. OpenCV's default 5 fixed-point steps left up to 0.29 px there, twice the pose's 0.15 px inlier threshold."""
+    import cv2
+
+    cam = Sequence.load(data_dir("euroc-v101-cam0")).camera
+    u, v = np.meshgrid(np.linspace(0, cam.width - 1, 60), np.linspace(0, cam.height - 1, 40))
+    px = np.c_[u.ravel(), v.ravel()]
+    x = cam.normalize(px)
+    back = cv2.projectPoints(np.c_[x, np.ones(len(x))], np.zeros(3), np.zeros(3), cam.K, cam.dist)[0].reshape(-1, 2)
+    assert np.abs(back - px).max() < 1e-6
+
+@pytest.mark.parametrize("model, dist", [("plumb_bob", [-0.28, 0.07, 0.0002, 0.00002, 0.0]),
+                                         ("equidistant", [0.05, -0.01, 0.003, -0.0005])])
+def test_skewed_camera_with_distortion_normalises(model, dist):
+    """A K with skew (u = fx x + s y + cx of the distorted point) and a lens: OpenCV's undistortPoints reads fx fy cx cy
+    alone, so the skew was dropped (here 8 px of 20 px skew at y = 0.4, 0.016 in normalised coordinates)."""
+    import cv2
+
+    Ks = K.copy()
+    Ks[0, 1] = 20.0
+    pts_n = np.array([[0.1, -0.2], [0.3, 0.4], [-0.4, 0.0], [0.5, -0.35]])
+    project = cv2.fisheye.projectPoints if model == "equidistant" else cv2.projectPoints
+    xd = project(np.c_[pts_n, np.ones(4)][None], np.zeros(3), np.zeros(3), np.eye(3), np.array(dist))[0].reshape(-1, 2)
+    px = (np.c_[xd, np.ones(4)] @ Ks.T)[:, :2]
+    np.testing.assert_allclose(Camera(Ks, dist, model=model).normalize(px), pts_n, atol=1e-5)
+
 @pytest.mark.parametrize("model, dist, msg", [
     ("fov", [0.9], "distortion model 'fov' is not supported; use one of plumb_bob, rational_polynomial, equidistant"),
     ("equidistant", [0.1, 0.0, 0.0, 0.0, 0.0], "equidistant (fisheye) distortion has 4 coefficients k1..k4, got 5"),
