@@ -32,7 +32,8 @@ PARAMS: dict[str, tuple] = {
                         "validation)", PRECISIONS),
     "matching": ("nn", "putative matches: nn (paper), mutual, ratio (Lowe 0.8)", ("nn", "mutual", "ratio")),
     "pose_estimator": ("ratio_magsac", "ratio_magsac: MAGSAC++ on the matches NM-Net and mutual NN + ratio 0.8 both keep; "
-                       "magsac: MAGSAC++ on NM-Net's selection; weighted8: eight-point weighted by NM-Net scores; "
+                       "magsac: MAGSAC++ on NM-Net's selection; weighted8: eight-point weighted by NM-Net scores (the paper's; no robust "
+                       "fit, far less accurate: AUC@5 19 against 89 on validation); "
                        "classic: mutual NN + ratio 0.8 + MAGSAC++ without the network",
                        ("ratio_magsac", "magsac", "weighted8", "classic")),
     "pose_threshold_px": (SELECTOR_DEFAULTS["threshold_px"], "MAGSAC++ inlier threshold in pixels (chosen on training "
