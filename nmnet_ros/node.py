@@ -348,7 +348,7 @@ class NMNetNode(Node):
             try:
                 det = self._detect(msg)
             except Exception as e:  # noqa: BLE001 - the node must survive any one frame
-                self._warn("internal_error", f"frame skipped after an unexpected error: {type(e).__name__}: {e}")
+                self._skipped(e)
                 continue
             if det is None:
                 continue
@@ -371,7 +371,15 @@ class NMNetNode(Node):
             try:
                 self._finish(det)
             except Exception as e:  # noqa: BLE001 - the node must survive any one frame
-                self._warn("internal_error", f"frame skipped after an unexpected error: {type(e).__name__}: {e}")
+                self._skipped(e)
+
+    def _skipped(self, e: Exception) -> None:
+        """A frame an unexpected error stopped: warned and counted, and the node goes on. Not while shutting down:
+        a stop signal ends ROS at once, so the frame then in flight fails to publish; the workers just end."""
+        if not self.context.ok():
+            self._running = False
+            return
+        self._warn("internal_error", f"frame skipped after an unexpected error: {type(e).__name__}: {e}")
 
     def _decode(self, msg) -> np.ndarray:
         if isinstance(msg, CompressedImage):

@@ -114,7 +114,7 @@ def node_and_peer(ros: dict, tmp_path, node_args: list[str], stop: int = signal.
     """``python -m nmnet_ros.node`` with ``node_args`` (log in tmp_path) and a :class:`Peer`; yields (node, peer).
 
     Both are stopped on leaving (the node by ``stop``), so ``node.output()`` is complete after the block; when the
-    block succeeded, the node must have exited cleanly.
+    block succeeded, the node must have exited cleanly, without an unexpected error on the way.
     """
     node = NodeProcess(node_args, ros, tmp_path / "node.log")
     peer = Peer(**peer_args)
@@ -124,6 +124,7 @@ def node_and_peer(ros: dict, tmp_path, node_args: list[str], stop: int = signal.
         peer.close()
         code = node.stop(stop)
     assert code == 0, f"the node exited with {code}:\n{node.output()}"
+    assert "unexpected error" not in node.output(), node.output()
 
 
 def no_estimate(msg) -> bool:
@@ -743,6 +744,31 @@ def test_flood_keeps_latency_bounded(ros, tmp_path):
     late = np.median([r for t, r in rss if t >= 10.0] + [rss1])
     assert late - early < 30  # flat memory: after warm-up nothing accumulates
 
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_a_stop_signal_while_frames_are_in_flight_is_a_quiet_clean_exit(ros, tmp_path, sig):
+    """Stopped while both stages work (frames at 30 Hz, more than the node keeps up with): exit 0 and nothing said
+    about it. The signal shuts ROS down at once, and the frame then in the second stage failed to publish: the node
+    warned "frame skipped after an unexpected error: RCLError ... context is invalid" and rcl "Failed to publish
+    log message to rosout", as if something had gone wrong."""
+    seq = Sequence.load(data_dir("kitti-07"))
+    imgs = [seq.image(i) for i in range(80, 90)]
+    node = NodeProcess([], ros, tmp_path / "node.log")
+    peer = Peer()
+    try:
+        peer.wait_connected()
+        peer.first_frame(kitti_info(seq), image_msg(imgs[0], 0.5))
+        for n in range(1, 61):  # 2 s at 30 Hz; the node takes ~10 Hz, so a frame is in each stage at the end
+            peer.pub_img.publish(image_msg(imgs[n % 10], 0.5 + n / 30))
+            spin_until(peer.node, lambda: False, 1 / 30)
+        assert peer.count("frames_processed") >= 5
+    finally:
+        peer.close()
+        code = node.stop(sig)
+    out = node.output()
+    assert code == 0, out
+    assert "unexpected error" not in out and "Failed to publish" not in out, out
 
 def test_node_module_caps_malloc_arenas_unless_the_user_set_it():
     """Importing the node limits glibc to one malloc arena (flat RSS); a user's MALLOC_ARENA_MAX wins."""
