@@ -100,12 +100,12 @@ class _Player:
     """The rclpy side of a live replay: publishes the bag's frames and calibration, records the node's outputs to
     ``out`` and counts them (``stats``: published, results, latency_ms, the node's last diagnostics)."""
 
-    def __init__(self, image_type: str, out: McapOutput) -> None:
+    def __init__(self, image_type: str, out: McapOutput, stats: dict) -> None:
         import rclpy
         from rclpy.qos import QoSProfile, qos_profile_sensor_data
 
         self.rclpy, self.out = rclpy, out
-        self.stats: dict = {"published": 0, "results": 0, "latency_ms": [], "diagnostics": {}}
+        self.stats = stats
         self.sent_at: dict[int, float] = {}  # image stamp -> when it was published
         self.answered: set[int] = set()  # stamps the node published matches for
         self.last_stamp: int | None = None  # the last frame published
@@ -189,10 +189,19 @@ class _Player:
                 count, quiet = self.stats["results"], time.monotonic()
 
 
+def new_stats() -> dict:
+    """A live replay's counts, as :func:`play_live` fills them: frames published, results, latencies, diagnostics."""
+    return {"published": 0, "results": 0, "latency_ms": [], "diagnostics": {}}
+
+
 def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None,
               camera: Camera | None = None, topics: dict[str, str | None] | None = None, recorded: bool = False,
-              window: tuple[float, float] | None = None) -> dict:
+              window: tuple[float, float] | None = None, stats: dict | None = None) -> dict:
     """Play, record, stop the node; returns counts and latencies.
+
+    ``stats`` (from :func:`new_stats`) is filled as the bag plays, so a caller whose replay is interrupted
+    (KeyboardInterrupt: rclpy's own signal handlers are not installed, Ctrl-C raises as in any script) has the counts
+    so far.
 
     ``camera``: published as camera_info with every image instead of the bag's camera_info; ``topics``: the
     :func:`live_topics` to play (default: the bag's only image and camera_info topics); ``recorded``: each message
@@ -205,14 +214,16 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
     topics = topics or live_topics(reader)
     img_t, info_t = topics["image"], None if camera else topics["camera_info"]
     node_proc = _start_node(reader.topics[img_t], node_args)
-    rclpy.init()
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C raises here; rclpy would end the context
     ts = typestore()
 
     def ros_msg(m):  # a bag message as the rclpy message it was
         return deserialize_message(bytes(ts.serialize_cdr(m.msg, m.msgtype)), _rclpy_type(m.msgtype))
 
     try:
-        player = _Player(reader.topics[img_t], out)
+        player = _Player(reader.topics[img_t], out, new_stats() if stats is None else stats)
         player.wait_for_node(node_proc)
         # calibration first, so the first frame is usable (bags often log it just after the image)
         first_info = None if camera or not info_t else next(iter(reader.messages({info_t})), None)

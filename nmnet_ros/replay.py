@@ -38,8 +38,8 @@ BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
 STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
 
 
-class _Terminated(Exception):
-    pass
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised as Ctrl-C is: an interrupt no ``except Exception`` on the way swallows."""
 
 
 def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
@@ -578,7 +578,7 @@ def main(args: argparse.Namespace) -> int:
                                      **reading, log=lambda _: None)  # the same frames: said once, by the first pass
             base.name = "SIFT+ratio+MAGSAC++"
             runs.append(base)
-    except (KeyboardInterrupt, _Terminated):
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (_Terminated)
         interrupted = True
         print("interrupted: closing the output file", file=sys.stderr)
     finally:
@@ -623,10 +623,11 @@ def live_node_args(args: argparse.Namespace) -> list[str]:
     return out
 
 
-def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: dict) -> dict:
+def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: dict, interrupted: bool = False) -> dict:
     """A live replay's summary from the player's ``stats`` (:func:`~.live.play_live`), printed: frames published,
     processed, dropped and why (the node's last /diagnostics; ``None`` where no report came), latency, the recording's
-    ``scores`` and ``tracks``."""
+    ``scores`` and ``tracks``. ``interrupted``: the replay was stopped, so the last frames were in flight and the node's
+    last report (1 Hz) is older than them: the drops are not explained."""
     lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
     processed = stats["results"]  # one ~/matches per processed frame
     diag = stats["diagnostics"]  # the node's last /diagnostics: why frames were dropped
@@ -639,6 +640,9 @@ def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: d
                "parameters": params}
     why = (f" ({summary['dropped_busy']} replaced by a newer frame while the node was busy, "
            f"{summary['frames'] - summary['received']} not received)" if diag and summary["dropped"] else "")
+    if interrupted:
+        summary["interrupted"] = True
+        why = " (interrupted: the last frames were in flight)" if summary["dropped"] else " (interrupted)"
     print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped{why}, "
           f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
     if warnings:  # frames the node skipped for bad input are among the dropped ones too
@@ -651,25 +655,26 @@ def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: d
 def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, camera: Camera | None, params: dict,
               truth: Trajectory | None = None, topics: dict[str, str | None] | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
-    from .live import play_live, recording_summary
+    from .live import new_stats, play_live, recording_summary
 
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
+    stats, interrupted = new_stats(), False  # filled as it plays: an interrupted replay sums up what it recorded
     try:
         recorded = params["stamp_source"] == "arrival"  # the player stamps frames as the bag recorded them; the node keeps it
         node_args = live_node_args(args) + (["-p", "stamp_source:=header"] if recorded else [])
-        stats = play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded,
-                          window=replay_window(args))
-    except (KeyboardInterrupt, _Terminated):
+        play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded,
+                  window=replay_window(args), stats=stats)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (_Terminated)
+        interrupted = True
         print("interrupted: closing the output file", file=sys.stderr)
-        return 130
     finally:
         out.close()
         signal.signal(signal.SIGTERM, old)
         for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
             print(f"warning: {w}")
-    summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth), params)
+    summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth), params, interrupted)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
         args.json.write_text(summary_json(summary))
-    return 0
+    return 130 if interrupted else 0

@@ -424,6 +424,33 @@ def test_live_replay_agrees_with_offline(tmp_path):
         assert s_live["tracks"]["count"] > 0
 
 
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_an_interrupted_live_replay_sums_up_what_it_recorded(tmp_path, sig):
+    """Ctrl-C (or SIGTERM) during a live replay: exit 130, a readable output file and the summary of the frames
+    played so far, in --json too, marked interrupted. The player let rclpy install its signal handlers, which end
+    the context instead of raising: a traceback (ExternalShutdownException) and no summary."""
+    out, log = tmp_path / "live.mcap", tmp_path / "replay.log"
+    with open(log, "w") as fh:
+        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out", str(out),
+                                 "--json", str(tmp_path / "s.json"), "--live", "--rate", "0.1"], cwd=ROOT, stdout=fh,
+                                stderr=subprocess.STDOUT, text=True)
+        t_end = time.monotonic() + 120
+        while "camera_info received" not in log.read_text() and time.monotonic() < t_end and proc.poll() is None:
+            time.sleep(0.2)  # the node is up and the bag plays (1 frame a second)
+        time.sleep(6)
+        assert proc.poll() is None, f"the replay ended before it could be interrupted:\n{log.read_text()}"
+        proc.send_signal(sig)
+        proc.wait(60)
+    text = log.read_text()
+    assert proc.returncode == 130 and "Traceback" not in text, text
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["interrupted"] is True and 3 <= summary["frames"] < 40 and summary["processed"] >= 2, summary
+    assert f"live: {summary['processed']}/{summary['frames']} frames processed" in text, text
+    counts = read_output(out)
+    assert counts["/nmnet_node/matches"] == summary["processed"]  # a frame's pose follows its matches: in flight, one
+    assert summary["processed"] - 1 <= counts.get("/nmnet_node/relative_pose", 0) <= summary["processed"]
+
 def test_live_replay_delivers_raw_frames_over_half_a_megabyte(tmp_path):
     """Raw 768x512 bgr8 frames (1.2 MB) reach the node: the player runs with the shipped large-frames profile.
 
