@@ -87,6 +87,9 @@ def decode_compressed(fmt: str, data: Buffer) -> np.ndarray:
     buf = _bytes(data)
     if buf.size == 0:
         raise ImageError("compressed image has no data")
+    if "compresseddepth" in fmt.lower():  # image_transport's depth codec: a header, then 16-bit depth or inverse depth
+        raise ImageError(f"format {fmt!r} is a depth camera's compressedDepth stream, not camera frames: subscribe "
+                         "the camera's colour or mono stream (its /compressed topic)")
     img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise ImageError(f"cannot decode compressed image (format {fmt!r}, {buf.size} bytes): corrupt or truncated data")

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from nmnet_ros.imgconv import ImageError, image_to_array
+from nmnet_ros.imgconv import ImageError, decode_compressed, image_to_array
 
 from .conftest import data_dir
 
@@ -87,6 +87,17 @@ def test_bad_payloads_say_what_is_wrong(fields, needle):
     with pytest.raises(ImageError) as err:
         image_to_array(*fields)
     assert needle in str(err.value)
+
+
+def test_a_compressed_depth_stream_is_named_not_called_corrupt():
+    """image_transport's compressedDepth (a 12-byte header, then a PNG of 16-bit depth) on the node's image/compressed
+    input, an easy remap slip on an RGB-D camera: said as such (it was "corrupt or truncated data")."""
+    depth = np.full((48, 64), 1500, np.uint16)
+    data = bytes(12) + cv2.imencode(".png", depth)[1].tobytes()
+    with pytest.raises(ImageError, match="'16UC1; compressedDepth png' is a depth camera's compressedDepth stream, not "
+                                         "camera frames: subscribe the camera's colour or mono stream"):
+        decode_compressed("16UC1; compressedDepth png", data)
+    assert decode_compressed("mono16; png compressed mono16", cv2.imencode(".png", depth)[1]).dtype == np.uint16
 
 
 @pytest.mark.parametrize("name", ["sift", "hessian-affine-fast"])
