@@ -21,6 +21,7 @@ from rosbags.typesys.store import Typestore
 
 from .caminfo import camera_from_info
 from .datasets import Trajectory, quat_to_rot
+from .dds import is_depth
 from .geometry import Camera, CameraError
 from .imgconv import IMAGE_TYPES, ImageError, decode_compressed, image_to_array
 from .tftree import TfError, TfTree
@@ -363,11 +364,6 @@ def camera_namespace(topic: str) -> str:
     """The namespace of an image topic's camera, where its camera_info lives (/cam/image_raw/compressed -> /cam; ""
     for a topic at the root), as image_transport's camera subscriber finds it."""
     return image_base(topic).rpartition("/")[0]
-
-
-def is_depth(topic: str) -> bool:
-    """Whether an image topic's name says it carries depth (/camera/depth/image_rect_raw, /aligned_depth_to_color/)."""
-    return "depth" in re.split(r"[^a-z0-9]+", topic.lower())
 
 
 def pick_image(topics: dict[str, str], wanted: str | None) -> tuple[str | None, str | None]:

@@ -10,6 +10,7 @@ one when the publisher ran with :data:`LARGE_FRAMES_PROFILE` (a 16 MB segment), 
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from .imgconv import IMAGE_TYPES
@@ -44,21 +45,34 @@ def silence_advice(subscribed_reliable: bool, publishers_reliable: list[bool]) -
     return "the camera may have stopped publishing"
 
 
+DEPTH_ADVICE = ("nmnet_node detects features in camera frames, not in depth images: remap its input to the camera's "
+                "colour, mono or infrared stream")
+
+
+def is_depth(topic: str) -> bool:
+    """Whether an image topic's name says it carries depth (/camera/depth/image_rect_raw, /aligned_depth_to_color/)."""
+    return "depth" in re.split(r"[^a-z0-9]+", topic.lower())
+
+
 def where_are_the_images(topics: list[tuple[str, list[str]]], ours: set[str], compressed: bool) -> str:
     """For a node whose image topic has no publisher: the image topics that do exist, and the remap to use.
 
     ``topics`` as ``Node.get_topic_names_and_types()`` gives them; ``ours``: the node's own image topics
-    (its subscription, its debug image), not listed; ``compressed``: it subscribes CompressedImage.
+    (its subscription, its debug image), not listed; ``compressed``: it subscribes CompressedImage. An RGB-D
+    camera's depth topics are listed but not suggested.
     """
     seen = [(name, t) for name, types in topics for t in types if t in IMAGE_TYPES and name not in ours]
     if not seen:
         return "no image topic is published at all: is the camera driver running, on this ROS_DOMAIN_ID?"
     listing = ", ".join(f"{name} [{t.rsplit('/', 1)[-1]}]" for name, t in seen)
-    same = [name for name, t in seen if t == IMAGE_TYPES[compressed]]
+    frames = [(name, t) for name, t in seen if not is_depth(name)]
+    if not frames:
+        return f"image topics seen: {listing}, all depth: {DEPTH_ADVICE} (is that stream enabled in the driver?)"
+    same = [name for name, t in frames if t == IMAGE_TYPES[compressed]]
     if same:
         hint = f"remap with -r {'image/compressed' if compressed else 'image'}:={same[0]}"
     elif compressed:
-        hint = f"for raw frames set -p use_compressed:=false -r image:={seen[0][0]}"
+        hint = f"for raw frames set -p use_compressed:=false -r image:={frames[0][0]}"
     else:
-        hint = f"for compressed frames set -p use_compressed:=true -r image/compressed:={seen[0][0]}"
+        hint = f"for compressed frames set -p use_compressed:=true -r image/compressed:={frames[0][0]}"
     return f"image topics seen: {listing}; {hint}"

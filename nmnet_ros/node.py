@@ -43,7 +43,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, Poi
 from std_srvs.srv import Trigger
 
 from .caminfo import camera_from_info, fit_camera
-from .dds import LARGE_FRAME_BYTES, follow_reliability, large_frames_advice, silence_advice, where_are_the_images
+from .dds import DEPTH_ADVICE, LARGE_FRAME_BYTES, follow_reliability, is_depth, large_frames_advice, silence_advice, where_are_the_images
 from .debug_view import draw_matches
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
@@ -161,6 +161,8 @@ class NMNetNode(Node):
         self._large_hint = False
         # a topic named like image_proc's rectified output: say once if its camera_info is the distorted raw one
         self._rect_hint_due = bool(re.search(r"(^|/|_)rect", self._image_sub.topic_name))
+        if is_depth(self._image_sub.topic_name):  # an RGB-D camera's depth, remapped by mistake: 16UC1 reads as mono
+            self.get_logger().warning(f"{self._image_sub.topic_name} looks like a depth topic: {DEPTH_ADVICE}")
         # camera_info is small: best effort matches publishers of either kind and loses nothing here
         self._info_sub = self.create_subscription(CameraInfo, "camera_info", self._on_info,
                                                   QoSProfile(depth=10) if p["qos"] == "reliable" else qos_profile_sensor_data)

@@ -1133,7 +1133,8 @@ def test_a_tum_rgbd_style_ros1_bag_replays_with_its_tf_ground_truth(tmp_path):
 def test_an_rgbd_cameras_depth_images_are_not_taken_for_its_frames(tmp_path):
     """An RGB-D camera's bag (TUM RGB-D's, a RealSense's) holds depth images beside the frames: the frames are taken,
     and said so, with their own camera_info (the replay asked to choose). Two cameras still ask."""
-    from nmnet_ros.bags import is_depth, pick_image
+    from nmnet_ros.bags import pick_image
+    from nmnet_ros.dds import is_depth
 
     image, info = "sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo"
     for topic in ("/camera/depth/image", "/camera/aligned_depth_to_color/image_raw", "/cam/depth_registered/image_raw",

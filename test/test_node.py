@@ -467,6 +467,17 @@ def test_a_node_nobody_publishes_to_names_the_image_topics_there_are(ros, tmp_pa
     assert ("use_sim_time is true but nothing has published /clock for 5 s: the node's clock stands at 0.000 s" in out) == sim, out
 
 
+
+def test_a_depth_topic_remapped_as_the_image_is_pointed_out_at_start_up(ros, tmp_path):
+    """An RGB-D camera's depth image (16UC1, which the node reads as a mono frame) remapped as the node's input: said
+    at start-up, naming the topic."""
+    with node_and_peer(ros, tmp_path, ["--ros-args", "-r", "image:=/camera/depth/image_rect_raw"],
+                       image_topic="/camera/depth/image_rect_raw") as (node, peer):
+        peer.wait_connected()
+        assert spin_until(peer.node, lambda: "looks like a depth topic" in node.output(), 10.0), node.output()
+    assert "/camera/depth/image_rect_raw looks like a depth topic: nmnet_node detects features in camera frames, not in " \
+        "depth images: remap its input to the camera's colour, mono or infrared stream" in node.output()
+
 def test_rectified_frames_take_p_and_a_rect_topic_with_distortion_is_pointed_out(ros, tmp_path):
     """KITTI's frames are rectified; given a camera_info whose K and D describe a raw, distorted camera and whose
     P is the rectified one, rectified:=true (set at run time) gives the right poses."""
@@ -503,6 +514,12 @@ def test_the_subscription_follows_the_publishers_and_the_advice_fits_the_case():
     assert "set -p use_compressed:=false -r image:=/cam/image_raw" in where_are_the_images([raw], {"/image/compressed"}, True)
     assert "no image topic is published at all" in where_are_the_images([other, ("/nmnet_node/debug_image", ["sensor_msgs/msg/Image"])],
                                                               {"/image", "/nmnet_node/debug_image"}, False)
+    # an RGB-D camera: its depth topics are listed, never suggested (16UC1 depth would read as mono frames)
+    depth = ("/camera/depth/image_rect_raw", ["sensor_msgs/msg/Image"])
+    colour = ("/camera/color/image_raw", ["sensor_msgs/msg/Image"])
+    assert where_are_the_images([depth, colour], {"/image"}, False).endswith("remap with -r image:=/camera/color/image_raw")
+    assert "all depth: nmnet_node detects features in camera frames, not in depth images" in where_are_the_images(
+        [depth], {"/image"}, False)
 
 
 def get_params(peer: Peer, names: list[str]) -> dict:
