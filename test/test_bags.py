@@ -432,9 +432,11 @@ def test_an_interrupted_live_replay_sums_up_what_it_recorded(tmp_path, sig):
     the context instead of raising: a traceback (ExternalShutdownException) and no summary."""
     out, log = tmp_path / "live.mcap", tmp_path / "replay.log"
     with open(log, "w") as fh:
+        # SIGINT as a terminal's Ctrl-C delivers it: a shell's background job (CI) starts with it ignored
         proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out", str(out),
                                  "--json", str(tmp_path / "s.json"), "--live", "--rate", "0.1"], cwd=ROOT, stdout=fh,
-                                stderr=subprocess.STDOUT, text=True)
+                                stderr=subprocess.STDOUT, text=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         t_end = time.monotonic() + 120
         while "camera_info received" not in log.read_text() and time.monotonic() < t_end and proc.poll() is None:
             time.sleep(0.2)  # the node is up and the bag plays (1 frame a second)
