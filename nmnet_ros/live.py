@@ -191,7 +191,7 @@ class _Player:
 
 def new_stats() -> dict:
     """A live replay's counts, as :func:`play_live` fills them: frames published, results, latencies, diagnostics."""
-    return {"published": 0, "results": 0, "latency_ms": [], "diagnostics": {}}
+    return {"published": 0, "results": 0, "latency_ms": [], "diagnostics": {}, "node_exit": None}
 
 
 def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None,
@@ -242,11 +242,15 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
                 continue
             first_ns = m.log_time_ns if first_ns is None else first_ns
             player.spin_for(t_start + (m.log_time_ns - first_ns) / 1e9 / rate - time.monotonic(), step=0.02)
+            if node_proc.poll() is not None:  # it crashed or was killed: nothing more can be processed
+                break
             msg = ros_msg(m)
             if recorded:
                 msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(m.log_time_ns, 10**9)
             player.publish(msg, m.topic == img_t, camera)
-        player.finish()
+        if node_proc.poll() is None:
+            player.finish()
+        player.stats["node_exit"] = node_proc.poll()  # None: still running, as it should be
         player.node.destroy_node()
         return player.stats
     finally:

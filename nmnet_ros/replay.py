@@ -600,7 +600,7 @@ def main(args: argparse.Namespace) -> int:
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
         args.json.write_text(summary_json(summary))
-    return 130 if interrupted else 0
+    return 130 if interrupted else 1 if "node_exit_code" in summary else 0
 
 
 def summary_json(summary: dict) -> str:
@@ -643,8 +643,15 @@ def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: d
     if interrupted:
         summary["interrupted"] = True
         why = " (interrupted: the last frames were in flight)" if summary["dropped"] else " (interrupted)"
+    if stats.get("node_exit") is not None:  # the node died: the drops are its, and the bag was not played to its end
+        summary["node_exit_code"] = stats["node_exit"]
+        why = f" (the node exited with code {stats['node_exit']} during the replay)"
     print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped{why}, "
           f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
+    if "node_exit_code" in summary:
+        print(f"error: nmnet_node exited with code {summary['node_exit_code']} after {summary['frames']} frames were "
+              "played; the rest of the bag was not (a negative code is the signal that ended it: -9, SIGKILL, is what "
+              "the kernel's out-of-memory killer sends; otherwise the node's log above says why)", file=sys.stderr)
     if warnings:  # frames the node skipped for bad input are among the dropped ones too
         print("   the node's warnings (its /diagnostics): " + ", ".join(f"{k} {v}" for k, v in sorted(warnings.items())))
     print_tracks(summary["tracks"])
@@ -677,4 +684,4 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
         args.json.write_text(summary_json(summary))
-    return 130 if interrupted else 0
+    return 130 if interrupted else 1 if "node_exit_code" in summary else 0

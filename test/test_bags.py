@@ -453,6 +453,33 @@ def test_an_interrupted_live_replay_sums_up_what_it_recorded(tmp_path, sig):
     assert counts["/nmnet_node/matches"] == summary["processed"]  # a frame's pose follows its matches: in flight, one
     assert summary["processed"] - 1 <= counts.get("/nmnet_node/relative_pose", 0) <= summary["processed"]
 
+
+def test_a_live_replay_whose_node_dies_says_so_and_stops(tmp_path):
+    """The node killed mid-replay (as the out-of-memory killer does): the replay stops playing, names the node's exit
+    code, sums up what was recorded and exits 1. It went on playing into nothing and reported the rest of the bag
+    as frames "not received", exit 0."""
+    import os
+
+    out, log = tmp_path / "live.mcap", tmp_path / "replay.log"
+    with open(log, "w") as fh:
+        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out", str(out),
+                                 "--json", str(tmp_path / "s.json"), "--live", "--rate", "0.1"], cwd=ROOT, stdout=fh,
+                                stderr=subprocess.STDOUT, text=True)
+        t_end = time.monotonic() + 120
+        while "camera_info received" not in log.read_text() and time.monotonic() < t_end and proc.poll() is None:
+            time.sleep(0.2)
+        time.sleep(4)
+        node = [int(p) for p in os.listdir("/proc") if p.isdigit() and Path(f"/proc/{p}/stat").exists()
+                and int(Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[1]) == proc.pid]
+        assert len(node) == 1 and proc.poll() is None, log.read_text()
+        os.kill(node[0], signal.SIGKILL)
+        proc.wait(60)
+    text = log.read_text()
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert proc.returncode == 1 and "error: nmnet_node exited with code -9 after" in text, text
+    assert summary["node_exit_code"] == -9 and 2 <= summary["frames"] < 20 and summary["processed"] >= 2, summary
+    assert read_output(out)["/nmnet_node/matches"] == summary["processed"]
+
 def test_live_replay_delivers_raw_frames_over_half_a_megabyte(tmp_path):
     """Raw 768x512 bgr8 frames (1.2 MB) reach the node: the player runs with the shipped large-frames profile.
 
