@@ -81,18 +81,32 @@ def live_topics(reader: BagReader, image_topic: str | None = None, info_topic: s
 
 
 def _input_topic(image_type: str) -> str:
-    """The node's (relative) input topic for frames of ``image_type``, as the player publishes them under /live."""
+    """The node's (relative) input topic for frames of ``image_type``, as the player publishes them under its prefix."""
     return "image/compressed" if image_type.endswith("CompressedImage") else "image"
 
 
+def _prefix() -> str:
+    """This replay's own topics: every topic between player and node lives under it, so two live replays that share a
+    domain (two at once on one machine with the same random domain, or a domain the user set, with a robot's
+    nmnet_node on it) never hear each other."""
+    return f"/nmnet_live_{os.getpid()}"
+
+
+# the node's outputs, remapped under the prefix; recorded under the node's own names (/nmnet_node/matches, ...)
+_OUTPUTS = (("matches", "sensor_msgs/msg/PointCloud2"), ("relative_pose", "geometry_msgs/msg/PoseWithCovarianceStamped"))
+
+
 def _start_node(image_type: str, node_args: list[str] | None) -> subprocess.Popen:
-    """``nmnet_node`` in its own process, on the player's domain, its inputs remapped to ``/live/...``."""
+    """``nmnet_node`` in its own process, on the player's domain, its inputs, outputs and /diagnostics remapped under
+    :func:`_prefix` (not a namespace: the parameters file's ``nmnet_node:`` section matches only the root one)."""
     env = live_env()
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTDDS_BUILTIN_TRANSPORTS",
                                            "FASTDDS_DEFAULT_PROFILES_FILE")})  # the player's own participant
-    in_topic = _input_topic(image_type)
+    in_topic, pre = _input_topic(image_type), _prefix()
+    remaps = [f"{in_topic}:={pre}/{in_topic}", f"camera_info:={pre}/camera_info", f"/diagnostics:={pre}/diagnostics",
+              *(f"~/{name}:={pre}/{name}" for name, _ in _OUTPUTS)]
     args = ["--ros-args", "-r", f"__node:={NODE_NAME}", "-p", f"use_compressed:={str(in_topic != 'image').lower()}",
-            "-r", f"{in_topic}:=/live/{in_topic}", "-r", "camera_info:=/live/camera_info", *(node_args or [])]
+            *(a for r in remaps for a in ("-r", r)), *(node_args or [])]
     return subprocess.Popen([sys.executable, "-m", "nmnet_ros.node", *args], env=env)
 
 
@@ -110,15 +124,16 @@ class _Player:
         self.answered: set[int] = set()  # stamps the node published matches for
         self.last_stamp: int | None = None  # the last frame published
         self.node = rclpy.create_node("nmnet_player")
-        self.pub_img = self.node.create_publisher(_rclpy_type(image_type), f"/live/{_input_topic(image_type)}",
+        pre = _prefix()
+        self.pub_img = self.node.create_publisher(_rclpy_type(image_type), f"{pre}/{_input_topic(image_type)}",
                                                   qos_profile_sensor_data)
-        self.pub_info = self.node.create_publisher(_rclpy_type("sensor_msgs/msg/CameraInfo"), "/live/camera_info",
+        self.pub_info = self.node.create_publisher(_rclpy_type("sensor_msgs/msg/CameraInfo"), f"{pre}/camera_info",
                                                    qos_profile_sensor_data)
-        for suffix, mtype in (("matches", "sensor_msgs/msg/PointCloud2"),
-                              ("relative_pose", "geometry_msgs/msg/PoseWithCovarianceStamped")):
-            topic = f"/{NODE_NAME}/{suffix}"
-            self.node.create_subscription(_rclpy_type(mtype), topic, self._recorder(topic, mtype), QoSProfile(depth=100))
-        self.node.create_subscription(_rclpy_type("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics",
+        for suffix, mtype in _OUTPUTS:
+            topic = f"/{NODE_NAME}/{suffix}"  # the name it is recorded under, as the node publishes it on a robot
+            self.node.create_subscription(_rclpy_type(mtype), f"{pre}/{suffix}", self._recorder(topic, mtype),
+                                          QoSProfile(depth=100))
+        self.node.create_subscription(_rclpy_type("diagnostic_msgs/msg/DiagnosticArray"), f"{pre}/diagnostics",
                                       self._on_diagnostics, QoSProfile(depth=10))
 
     def _recorder(self, topic: str, msgtype: str) -> Callable[[Any], None]:

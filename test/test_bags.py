@@ -480,6 +480,37 @@ def test_a_live_replay_whose_node_dies_says_so_and_stops(tmp_path):
     assert summary["node_exit_code"] == -9 and 2 <= summary["frames"] < 20 and summary["processed"] >= 2, summary
     assert read_output(out)["/nmnet_node/matches"] == summary["processed"]
 
+
+def test_two_live_replays_on_one_domain_do_not_hear_each_other(tmp_path):
+    """Two live replays at once on the same ROS_DOMAIN_ID (two runs that drew the same random domain, or a domain the
+    user set): each records only its own node's results. They shared /live/image, /nmnet_node/matches and
+    /diagnostics, so each node took the other's frames too (a CI run: 3 frames played, 6 processed, 9 received)."""
+    import os
+
+    from mcap.reader import make_reader
+
+    from .rosharness import unique_domain
+
+    env = {**os.environ, "ROS_DOMAIN_ID": str(unique_domain())}
+    parts = {"first": ("0", "1.5"), "second": ("2", "1.5")}  # seconds after the first frame; KITTI frames 0.104 s apart
+    frames = {"first": 15, "second": 14}  # frames 0-14 and 20-33
+    procs = {name: subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--live",
+                                     "--rate", "0.5", "--start", a, "--duration", d, "--out", str(tmp_path / f"{name}.mcap"),
+                                     "--json", str(tmp_path / f"{name}.json")], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True)
+             for name, (a, d) in parts.items()}
+    logs = {name: p.communicate(timeout=300)[0] for name, p in procs.items()}
+    stamps = {}
+    for name, p in procs.items():
+        assert p.returncode == 0, logs[name]
+        s = json.loads((tmp_path / f"{name}.json").read_text())
+        n = frames[name]
+        assert s["frames"] == n and s["processed"] + s["dropped"] == n and s["received"] <= n, (name, s)
+        with open(tmp_path / f"{name}.mcap", "rb") as f:
+            stamps[name] = [m.log_time for _, _, m in make_reader(f).iter_messages(topics=["/nmnet_node/matches"])]
+        assert len(stamps[name]) == s["processed"] >= 10, (name, s)
+    assert max(stamps["first"]) < min(stamps["second"])  # each holds its own part of the bag only
+
 def test_live_replay_delivers_raw_frames_over_half_a_megabyte(tmp_path):
     """Raw 768x512 bgr8 frames (1.2 MB) reach the node: the player runs with the shipped large-frames profile.
 
