@@ -600,7 +600,7 @@ def main(args: argparse.Namespace) -> int:
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
         args.json.write_text(summary_json(summary))
-    return 130 if interrupted else 1 if "node_exit_code" in summary else 0
+    return 130 if interrupted else 0
 
 
 def summary_json(summary: dict) -> str:
