@@ -425,31 +425,39 @@ def test_live_replay_agrees_with_offline(tmp_path):
 
 
 
+@contextmanager
+def live_replay_playing(tmp_path: Path, seconds: float):
+    """``nmnet replay --live`` of the sample bag at 1 frame a second (output ``live.mcap``, ``s.json``, log
+    ``replay.log`` in tmp_path), yielded once the node is up and ``seconds`` of the bag have played; waited for on
+    leaving. SIGINT reaches it as a terminal's Ctrl-C does: a shell's background job (CI) starts with it ignored."""
+    log = tmp_path / "replay.log"
+    with open(log, "w") as fh:
+        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out",
+                                 str(tmp_path / "live.mcap"), "--json", str(tmp_path / "s.json"), "--live", "--rate", "0.1"],
+                                cwd=ROOT, stdout=fh, stderr=subprocess.STDOUT, text=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        t_end = time.monotonic() + 120
+        while "camera_info received" not in log.read_text() and time.monotonic() < t_end and proc.poll() is None:
+            time.sleep(0.2)  # the node is up and the bag plays
+        time.sleep(seconds)
+        assert proc.poll() is None, f"the replay ended before it could be interrupted:\n{log.read_text()}"
+        yield proc
+        proc.wait(60)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_an_interrupted_live_replay_sums_up_what_it_recorded(tmp_path, sig):
     """Ctrl-C (or SIGTERM) during a live replay: exit 130, a readable output file and the summary of the frames
     played so far, in --json too, marked interrupted. The player let rclpy install its signal handlers, which end
     the context instead of raising: a traceback (ExternalShutdownException) and no summary."""
-    out, log = tmp_path / "live.mcap", tmp_path / "replay.log"
-    with open(log, "w") as fh:
-        # SIGINT as a terminal's Ctrl-C delivers it: a shell's background job (CI) starts with it ignored
-        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out", str(out),
-                                 "--json", str(tmp_path / "s.json"), "--live", "--rate", "0.1"], cwd=ROOT, stdout=fh,
-                                stderr=subprocess.STDOUT, text=True,
-                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-        t_end = time.monotonic() + 120
-        while "camera_info received" not in log.read_text() and time.monotonic() < t_end and proc.poll() is None:
-            time.sleep(0.2)  # the node is up and the bag plays (1 frame a second)
-        time.sleep(6)
-        assert proc.poll() is None, f"the replay ended before it could be interrupted:\n{log.read_text()}"
+    with live_replay_playing(tmp_path, 6) as proc:
         proc.send_signal(sig)
-        proc.wait(60)
-    text = log.read_text()
+    text = (tmp_path / "replay.log").read_text()
     assert proc.returncode == 130 and "Traceback" not in text, text
     summary = json.loads((tmp_path / "s.json").read_text())
     assert summary["interrupted"] is True and 3 <= summary["frames"] < 40 and summary["processed"] >= 2, summary
     assert f"live: {summary['processed']}/{summary['frames']} frames processed" in text, text
-    counts = read_output(out)
+    counts = read_output(tmp_path / "live.mcap")
     assert counts["/nmnet_node/matches"] == summary["processed"]  # a frame's pose follows its matches: in flight, one
     assert summary["processed"] - 1 <= counts.get("/nmnet_node/relative_pose", 0) <= summary["processed"]
 
@@ -460,26 +468,21 @@ def test_a_live_replay_whose_node_dies_says_so_and_stops(tmp_path):
     as frames "not received", exit 0."""
     import os
 
-    out, log = tmp_path / "live.mcap", tmp_path / "replay.log"
-    with open(log, "w") as fh:
-        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out", str(out),
-                                 "--json", str(tmp_path / "s.json"), "--live", "--rate", "0.1"], cwd=ROOT, stdout=fh,
-                                stderr=subprocess.STDOUT, text=True)
-        t_end = time.monotonic() + 120
-        while "camera_info received" not in log.read_text() and time.monotonic() < t_end and proc.poll() is None:
-            time.sleep(0.2)
-        time.sleep(4)
-        node = [int(p) for p in os.listdir("/proc") if p.isdigit() and Path(f"/proc/{p}/stat").exists()
-                and int(Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[1]) == proc.pid]
-        assert len(node) == 1 and proc.poll() is None, log.read_text()
-        os.kill(node[0], signal.SIGKILL)
-        proc.wait(60)
-    text = log.read_text()
+    with live_replay_playing(tmp_path, 4) as proc:
+        children = []
+        for pid in filter(str.isdigit, os.listdir("/proc")):
+            try:  # the field after the command's closing parenthesis: state, then the parent's pid
+                if int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1]) == proc.pid:
+                    children.append(int(pid))
+            except OSError:  # a process that ended meanwhile
+                pass
+        assert len(children) == 1, children
+        os.kill(children[0], signal.SIGKILL)
+    text = (tmp_path / "replay.log").read_text()
     summary = json.loads((tmp_path / "s.json").read_text())
     assert proc.returncode == 1 and "error: nmnet_node exited with code -9 after" in text, text
     assert summary["node_exit_code"] == -9 and 2 <= summary["frames"] < 20 and summary["processed"] >= 2, summary
-    assert read_output(out)["/nmnet_node/matches"] == summary["processed"]
-
+    assert read_output(tmp_path / "live.mcap")["/nmnet_node/matches"] == summary["processed"]
 
 def test_two_live_replays_on_one_domain_do_not_hear_each_other(tmp_path):
     """Two live replays at once on the same ROS_DOMAIN_ID (two runs that drew the same random domain, or a domain the
