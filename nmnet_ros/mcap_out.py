@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from mcap.records import Header
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from .bags import typestore
@@ -20,20 +22,42 @@ if TYPE_CHECKING:  # the front end (and its network) is not needed to write a ba
     from .pipeline import FrameResult
 
 
+LIBRARY = "nmnet_ros"  # the .mcap header's library field: marks the files written here
+
+
+def written_here(path: Path) -> bool:
+    """Whether an existing file may be overwritten: empty, or an .mcap this module wrote (an earlier output)."""
+    try:
+        if path.stat().st_size == 0:
+            return True
+        with open(path, "rb") as fh:
+            first = next(iter(StreamReader(fh, skip_magic=False).records), None)
+    except Exception:  # noqa: BLE001 - not an .mcap at all (a .db3, a .bag, a text file): not ours
+        return False
+    return isinstance(first, Header) and first.library == LIBRARY
+
+
 class McapOutput:
-    """Writes the front end's outputs (matches, relative pose, debug image) to an .mcap file."""
+    """Writes the front end's outputs (matches, relative pose, debug image) to an .mcap file.
+
+    An existing file is overwritten only when it is an earlier output: a recording (the bag being replayed, given
+    as the output by mistake) or any other file is refused, as nothing of the user's may be lost.
+    """
 
     def __init__(self, path: str | Path, pose_sigmas: tuple[float, float] = SIGMAS) -> None:
         """``pose_sigmas``: the relative poses' covariance, as the node's pose_sigma_* parameters."""
         self.path = Path(path)
         self.pose_sigmas = pose_sigmas
+        if self.path.is_file() and not written_here(self.path):
+            raise FileExistsError(f"output {self.path} exists and was not written by nmnet (a recording, or another "
+                                  "file): it would be overwritten; choose another output path, or delete it first")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._fh = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         except OSError as e:
             raise OSError(f"cannot write output {self.path}: {e.strerror or e}") from e
         self._writer = Writer(self._fh, compression=CompressionType.ZSTD)
-        self._writer.start(profile="ros2", library="nmnet_ros")
+        self._writer.start(profile="ros2", library=LIBRARY)
         self.ts = typestore()
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}

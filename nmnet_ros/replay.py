@@ -320,7 +320,7 @@ def _save(fig, path: Path) -> Path:
 
 
 def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> list[Path]:
-    """Per-frame errors, trajectory (top view), match overlay."""
+    """Per-frame errors and trajectory (top view) where ground truth scored any pair, and the match overlay."""
     import cv2
     import matplotlib
 
@@ -328,36 +328,35 @@ def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> l
     import matplotlib.pyplot as plt
 
     paths = []
-    fig, ax = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
-    for run in runs:
-        if run.scores.errors:
+    scored = [run for run in runs if run.scores.errors]
+    if scored:  # without ground truth there is nothing to draw: no empty figures
+        fig, ax = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+        for run in scored:
             e = np.array(run.scores.errors)
             ax[0].plot(run.scores.stamps, e[:, 0], ".-", label=run.name)
             ax[1].plot(run.scores.stamps, e[:, 1], ".-", label=run.name)
-    ax[0].set_ylabel("rotation error (deg)")
-    ax[1].set_ylabel("translation dir. error (deg)")
-    ax[1].set_xlabel("time (s)")
-    for a in ax:
-        a.grid(alpha=0.3)
-        a.legend(fontsize=8)
-    paths.append(_save(fig, out_dir / "errors.png"))
+        ax[0].set_ylabel("rotation error (deg)")
+        ax[1].set_ylabel("translation dir. error (deg)")
+        ax[1].set_xlabel("time (s)")
+        for a in ax:
+            a.grid(alpha=0.3)
+            a.legend(fontsize=8)
+        paths.append(_save(fig, out_dir / "errors.png"))
 
-    fig, ax = plt.subplots(figsize=(6, 5))
-    gt_drawn = False
-    for run in runs:
-        est, gt = chain_trajectory(run)
-        if len(gt) == 0:
-            continue
-        if not gt_drawn:
-            ax.plot(gt[:, 0], gt[:, 2], "k-", lw=2, label="ground truth")
-            gt_drawn = True
-        ax.plot(est[:, 0], est[:, 2], ".-", label=f"{run.name} (scale from GT)")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("z (m)")
-    ax.axis("equal")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    paths.append(_save(fig, out_dir / "trajectory.png"))
+    chains = [(run, *chain_trajectory(run)) for run in runs]
+    chains = [(run, est, gt) for run, est, gt in chains if len(gt)]
+    if chains:
+        fig, ax = plt.subplots(figsize=(6, 5))
+        gt = chains[0][2]
+        ax.plot(gt[:, 0], gt[:, 2], "k-", lw=2, label="ground truth")
+        for run, est, _ in chains:
+            ax.plot(est[:, 0], est[:, 2], ".-", label=f"{run.name} (scale from GT)")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("z (m)")
+        ax.axis("equal")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        paths.append(_save(fig, out_dir / "trajectory.png"))
     if overlay is not None:
         paths.append(out_dir / "matches.png")
         cv2.imwrite(str(paths[-1]), overlay)
@@ -537,11 +536,35 @@ def ground_truth(reader: BagReader, args: argparse.Namespace, image_topic: str) 
     return truth.moved(args.gt_camera) if truth is not None and args.gt_camera is not None else truth
 
 
+def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> Path:
+    """Stop before any processing when an output would overwrite an input or cannot be written; the plots' folder.
+
+    The summary and the plots are written last, so a bad ``--json`` or ``--plots`` found only then would lose them
+    after the whole replay.
+    """
+    outputs = {"--out": args.out, "--json": args.json}
+    given = [p for p in inputs if p is not None and p.exists()]
+    for flag, path in outputs.items():
+        same = next((p for p in given if path is not None and path.exists() and path.samefile(p)), None)
+        if same is not None:
+            raise ValueError(f"{flag} {path} is an input of this replay ({same}): it would be overwritten; "
+                             "choose another path")
+    if args.json is not None:
+        if args.json.resolve() == args.out.resolve():
+            raise ValueError(f"--json {args.json} is also --out: give the summary its own file")
+        if args.json.is_dir():
+            raise ValueError(f"--json {args.json} is a folder: give a file name, e.g. {args.json / 'summary.json'}")
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+    if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
+        raise ValueError(f"--plots {args.plots} is a file: give a folder for the plots")
+    return args.plots or args.out.parent  # --out's folder: its writability is checked as the output is opened
+
+
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay``: offline through the front end here, or ``--live`` through the node."""
     reader = BagReader(args.bag)  # a missing or unreadable bag stops here
+    plots_dir = check_outputs(args, [*reader.files, args.gt, args.camera, args.params_file, args.weights])
     params = node_params(args)  # a bad parameters file stops here, naming it
-    plots_dir = args.plots or args.out.parent
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic}
     if args.live:
         from .live import live_topics, require_ros
@@ -594,12 +617,12 @@ def main(args: argparse.Namespace) -> int:
     if len(runs) > 1:
         summary["baseline"] = runs[1].summary(n)
         print_summary(summary["baseline"], runs[1].name)
+    if args.json:  # before the plots: the summary is what a script reads
+        args.json.write_text(summary_json(summary))
     plots_dir.mkdir(parents=True, exist_ok=True)
     for p in write_plots(runs, overlay, plots_dir):
         print(f"plot: {p}")
     print(f"output: {args.out} ({out.count} messages)")
-    if args.json:
-        args.json.write_text(summary_json(summary))
     return 130 if interrupted else 0
 
 

@@ -340,6 +340,33 @@ def test_unwritable_output_fails_before_processing(tmp_path):
     assert time.monotonic() - t < 30
 
 
+def test_an_output_that_would_overwrite_an_input_or_a_recording_is_refused_before_processing(tmp_path):
+    bag = tmp_path / "in.mcap"
+    shutil.copy(next(SAMPLE_BAG.glob("*.mcap")), bag)
+    gt = tmp_path / "gt.txt"
+    gt.write_text("# a user's ground truth\n")
+    other = tmp_path / "notes.txt"
+    other.write_text("a user's file\n")
+    kept = {p: p.read_bytes() for p in (bag, gt, other)}
+    out = str(tmp_path / "o.mcap")
+    for args, said in [(("--out", str(bag)), f"--out {bag} is an input of this replay"),
+                       (("--out", out, "--json", str(bag)), f"--json {bag} is an input of this replay"),
+                       (("--out", str(gt), "--gt", str(gt)), f"--out {gt} is an input of this replay"),
+                       (("--out", str(other)), "exists and was not written by nmnet"),
+                       (("--out", out, "--json", out), "is also --out"),
+                       (("--out", out, "--json", str(tmp_path)), "is a folder"),
+                       (("--out", out, "--plots", str(other)), "is a file: give a folder")]:
+        r = nmnet("replay", str(bag), *args, "--no-progress")
+        assert r.returncode == 2 and said in r.stderr and "frames" not in r.stdout, (args, r.stderr)
+    assert all(p.read_bytes() == data for p, data in kept.items())
+    # an earlier output is overwritten, and the summary goes into a folder made for it, before the plots
+    summary = tmp_path / "new" / "s.json"
+    for _ in range(2):
+        r = nmnet("replay", str(bag), "--out", out, "--json", str(summary), "--duration", "0.3", "--no-progress")
+        assert r.returncode == 0, r.stderr
+    assert json.loads(summary.read_text())["frames"] == 3 and read_output(Path(out))["/nmnet_node/relative_pose"] == 3
+
+
 def test_missing_bag_and_unknown_format(tmp_path):
     r = nmnet("replay", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "o.mcap"))
     assert r.returncode == 2 and "no such bag" in r.stderr
@@ -656,6 +683,14 @@ def test_a_replay_keeps_no_frames_matches_and_sums_up_the_tracks_it_wrote(raw_ba
     assert n == 6 and s["processed"] == 6 and s["selected_per_frame"] > 100 and len(written) == 6
     assert s["tracks"] == track_summary(written) and s["tracks"]["longest"] >= 4
     assert len(pickle.dumps(run)) < 5000 * n
+
+
+def test_a_bag_without_ground_truth_gets_the_match_picture_and_no_empty_plots(raw_bag, tmp_path):
+    bag = tmp_path / "no_gt"
+    rewrite_bag(raw_bag, bag, lambda topic, msg: None if topic == "/ground_truth/pose" else msg)
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--no-progress")
+    assert r.returncode == 0 and "plot:" in r.stdout and "vs ground truth" not in r.stdout, r.stderr
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["matches.png"] and "legend" not in r.stderr
 
 
 def test_a_refused_camera_info_is_named_then_counted_for_the_frames_it_stops(raw_bag, tmp_path):
