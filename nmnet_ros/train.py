@@ -398,6 +398,12 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     rng = np.random.default_rng(c["seed"])
     out_dir = Path(out_dir)
     resuming = resume and (out_dir / "last.pt").is_file()  # --init only seeds a run's first start
+    earlier = [name for name in ("best.pt", "last.pt") if (out_dir / name).is_file()]
+    if earlier and not resuming:  # a new run would replace them after its first epoch: hours of training lost
+        raise ValueError(f"{out_dir} holds a training run already ({', '.join(earlier)}): add --resume to continue it "
+                         "(from last.pt), or give a new --out")
+    if resume and not resuming:
+        log(f"--resume: {out_dir / 'last.pt'} does not exist yet, so this is a new run")
     if c["init"] is not None and not resuming:
         model = _init_model(Path(c["init"]), kind, c["ratio_input"])  # checked before any features are computed
         log(f"initialised from {c['init']}")

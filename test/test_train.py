@@ -64,10 +64,15 @@ def test_train_few_steps_then_resume(tmp_path):
     cfg = {"epochs": 1, "steps_per_epoch": 2, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1,
            "workers": 2}  # the batch is mined in two threads
     spec_train, spec_val = [f"{seq}:0-1"], [f"{seq}:2-3"]  # one pair each
-    s = train(spec_train, spec_val, tmp_path, cfg, cache_dir=tmp_path / "cache")
-    assert s["train_pairs"] == 1 and s["val_pairs"] == 1
+    said: list[str] = []
+    s = train(spec_train, spec_val, tmp_path, cfg, resume=True, cache_dir=tmp_path / "cache", log=said.append)
+    assert s["train_pairs"] == 1 and s["val_pairs"] == 1 and "does not exist yet, so this is a new run" in said[0]
     model = load_model(tmp_path / "best.pt")
     assert not model.training
+    best = (tmp_path / "best.pt").read_bytes()
+    with pytest.raises(ValueError, match=f"{tmp_path} holds a training run already .best.pt, last.pt.: add --resume"):
+        train(spec_train, spec_val, tmp_path, cfg, cache_dir=tmp_path / "cache")  # run again, --resume forgotten
+    assert (tmp_path / "best.pt").read_bytes() == best
     s2 = train(spec_train, spec_val, tmp_path, {**cfg, "epochs": 2}, resume=True, cache_dir=tmp_path / "cache")
     hist = json.loads((tmp_path / "history.json").read_text())
     assert [h["epoch"] for h in hist] == [0, 1] and s2["best_val_f1_at_0.5"] >= s["best_val_f1_at_0.5"]
