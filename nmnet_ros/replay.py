@@ -344,7 +344,7 @@ def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> l
         paths.append(_save(fig, out_dir / "errors.png"))
 
     chains = [(run, *chain_trajectory(run)) for run in runs]
-    chains = [(run, est, gt) for run, est, gt in chains if len(gt)]
+    chains = [(run, est, gt) for run, est, gt in chains if len(gt) > 1]  # a path: two positions or more
     if chains:
         fig, ax = plt.subplots(figsize=(6, 5))
         gt = chains[0][2]

@@ -691,6 +691,9 @@ def test_a_bag_without_ground_truth_gets_the_match_picture_and_no_empty_plots(ra
     r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--no-progress")
     assert r.returncode == 0 and "plot:" in r.stdout and "vs ground truth" not in r.stdout, r.stderr
     assert sorted(p.name for p in tmp_path.glob("*.png")) == ["matches.png"] and "legend" not in r.stderr
+    one = tmp_path / "one_frame"  # ground truth, but a single frame: no pair, no path
+    r = nmnet("replay", str(raw_bag), "--out", str(one / "o.mcap"), "--duration", "0", "--no-progress")
+    assert r.returncode == 0 and "1/1 frames" in r.stdout and "plot:" not in r.stdout and not list(one.glob("*.png"))
 
 
 def test_a_refused_camera_info_is_named_then_counted_for_the_frames_it_stops(raw_bag, tmp_path):
