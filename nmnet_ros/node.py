@@ -159,6 +159,7 @@ class NMNetNode(Node):
         self._clockless_s = 0  # seconds under use_sim_time without a publisher on /clock
         self._received_before = 0
         self._large_hint = False
+        self._frameless_said = False  # frames whose header names no frame: said once
         # a topic named like image_proc's rectified output: say once if its camera_info is the distorted raw one
         self._rect_hint_due = bool(re.search(r"(^|/|_)rect", self._image_sub.topic_name))
         if is_depth(self._image_sub.topic_name):  # an RGB-D camera's depth, remapped by mistake: 16UC1 reads as mono
@@ -330,6 +331,12 @@ class NMNetNode(Node):
             self._large_hint = True  # said once: with a large-frames profile on the camera's side they all arrive
             self.get_logger().info(f"frames of {len(msg.data) / 1e6:.1f} MB on a best-effort subscription: "
                                    f"{large_frames_advice()}")
+        if not msg.header.frame_id and not self._frameless_said:
+            self._frameless_said = True  # a driver setting: said once, not a fault of each frame
+            self.get_logger().warning(f"frames on {self._image_sub.topic_name} name no frame (empty header.frame_id): "
+                                      "~/relative_pose and ~/matches carry their header, so tf2 and a back end cannot "
+                                      "tell which camera they belong to; set the camera driver's frame_id (its optical "
+                                      "frame, e.g. camera_optical_frame)")
         with self._cv:
             if self._slot is not None:
                 self.stats.dropped += 1

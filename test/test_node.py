@@ -682,7 +682,7 @@ def test_parameters_change_while_running(ros, tmp_path):
 def test_a_driver_that_does_not_stamp_is_stamped_on_arrival(ros, tmp_path):
     """Frames stamped 0 (a driver that does not stamp): skipped with header stamps, said so with the remedy; with
     stamp_source arrival (switched on while running) each takes the node's clock when it arrives, so the chain goes
-    on, and the outputs carry that time."""
+    on, and the outputs carry that time. Frames that name no frame are processed, and that is said once."""
     with kitti_node(ros, tmp_path, 60) as (seq, peer, node):
         peer.pub_info.publish(kitti_info(seq))
         peer.pub_img.publish(image_msg(seq.image(61), 0.0))
@@ -691,13 +691,14 @@ def test_a_driver_that_does_not_stamp_is_stamped_on_arrival(ros, tmp_path):
         before = time.time()  # the node's clock: system time (no use_sim_time)
         for n, i in enumerate((62, 63), 1):
             peer.pub_info.publish(kitti_info(seq))
-            peer.pub_img.publish(image_msg(seq.image(i), 0.0))
+            peer.pub_img.publish(image_msg(seq.image(i), 0.0, frame_id=""))  # nor names its frame
             assert spin_until(peer.node, lambda n=n: len(peer.matches) > n and len(peer.poses) > n, 30.0), i
         stamps = peer.stamps(peer.matches)[1:]  # after the first frame's, at 1.0 s
         assert before < stamps[0] < stamps[1] < time.time() and peer.stamps(peer.poses)[1:] == stamps, stamps
         assert len(published_matches(peer, stamps[1])) > 50 and not no_estimate(peer.pose_for(stamps[1]))
         assert peer.count("warn_out_of_order_stamp") == 1 and peer.count("warn_duplicate_stamp") == 0
     assert "If not, stamp_source:=arrival stamps them on arrival" in node.output()
+    assert node.output().count("name no frame (empty header.frame_id)") == 1 and "camera_optical_frame" in node.output()
 
 
 @pytest.mark.parametrize("name, value", [("matching", "fancy"), ("pose_threshold_px", "0.0"), ("max_keypoints", "lots")],
