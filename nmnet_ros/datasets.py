@@ -302,9 +302,15 @@ class Sequence:
 
     def image(self, i: int) -> np.ndarray:
         """Frame i as stored (uint8 gray or BGR)."""
-        img = cv2.imread(str(self.paths[i]), cv2.IMREAD_UNCHANGED)
+        path = self.paths[i]
+        try:  # decoded from its bytes: cv2.imread returns a truncated JPEG's top part, grey below, with a mere warning
+            data = np.fromfile(path, np.uint8)
+        except OSError as e:
+            raise DatasetError(f"{path}: cannot read image: {e.strerror or e}") from e
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
         if img is None:
-            raise DatasetError(f"{self.paths[i]}: cannot read image")
+            raise DatasetError(f"{path}: cannot decode image ({data.size} bytes): truncated, corrupt or not an image "
+                               "(PNG, JPEG, PGM, ...); copy it again from its source")
         return img
 
     def has_pose(self, i: int) -> bool:

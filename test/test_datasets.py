@@ -157,6 +157,22 @@ def test_empty_folder_names_missing_camera_yaml(tmp_path):
         Sequence.load(tmp_path)
 
 
+def test_a_missing_truncated_or_empty_image_is_named_not_read_in_part(tmp_path):
+    src = data_dir("strecha-fountain-p11")
+    for name in ("camera.yaml", "images.txt", "groundtruth.txt"):
+        shutil.copy(src / name, tmp_path / name)
+    shutil.copytree(src / "images", tmp_path / "images")
+    seq = Sequence.load(tmp_path)
+    whole = seq.image(1)
+    seq.paths[1].write_bytes(seq.paths[1].read_bytes()[:-2000])  # a copy cut short: cv2.imread gave its top part
+    seq.paths[2].write_bytes(b"")
+    seq.paths[3].unlink()
+    assert whole.shape == (512, 768, 3) and seq.image(0).shape == whole.shape
+    for i, said in ((1, "cannot decode image"), (2, r"cannot decode image \(0 bytes\)"), (3, "cannot read image: No such file")):
+        with pytest.raises(DatasetError, match=f"{seq.paths[i].name}: {said}"):
+            seq.image(i)
+
+
 def test_missing_images_txt_and_bad_yaml(tmp_path):
     shutil.copy(data_dir("kitti-07") / "camera.yaml", tmp_path / "camera.yaml")
     with pytest.raises(DatasetError, match="images.txt"):
