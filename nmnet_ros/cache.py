@@ -1,4 +1,4 @@
-"""On-disk feature cache, keyed by sequence, frame and detector settings (training, evaluation)."""
+"""On-disk feature cache, keyed by detector settings, sequence and image file (training, evaluation)."""
 
 from __future__ import annotations
 
@@ -26,9 +26,11 @@ class FeatureCache:
         self._memo: dict[Path, Features] = {}  # one object per frame, shared by all its pairs
 
     def path(self, seq: Sequence, i: int) -> Path:
-        """Cache file of frame i; the folder's absolute path is hashed so equal names do not collide."""
+        """Cache file of frame i; the folder's absolute path is hashed so equal names do not collide, and the image
+        file's path, size and time (:meth:`Sequence.image_version`) so a changed image is detected again."""
         tag = hashlib.sha1(str(seq.root.resolve()).encode()).hexdigest()[:8]
-        return self.root / self.detector.cache_key / f"{seq.name}-{tag}" / f"{seq.paths[i].stem}.npz"
+        version = hashlib.sha1(seq.image_version(i).encode()).hexdigest()[:10]
+        return self.root / self.detector.cache_key / f"{seq.name}-{tag}" / f"{seq.paths[i].stem}-{version}.npz"
 
     def __call__(self, seq: Sequence, i: int) -> Features:
         """Features of frame i of ``seq``, from the cache when present."""

@@ -313,6 +313,16 @@ class Sequence:
                                "(PNG, JPEG, PGM, ...); copy it again from its source")
         return img
 
+    def image_version(self, i: int) -> str:
+        """Frame i's file as it is now (its path in the folder, size and modification time), for caches: an image
+        replaced or edited since is a new entry, and two files of one name in different subfolders are two."""
+        path = self.paths[i]
+        try:
+            st = path.stat()
+        except OSError as e:
+            raise DatasetError(f"{path}: cannot read image: {e.strerror or e}") from e
+        return f"{path.relative_to(self.root) if path.is_relative_to(self.root) else path}|{st.st_size}|{st.st_mtime_ns}"
+
     def has_pose(self, i: int) -> bool:
         """Whether groundtruth.txt gives frame i a pose."""
         return self.poses is not None and not np.isnan(self.poses[i, 3, 3])

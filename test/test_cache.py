@@ -1,0 +1,37 @@
+"""The feature cache: each image file's features once, and again when the file changes."""
+
+import os
+import shutil
+
+import numpy as np
+
+from nmnet_ros.cache import FeatureCache
+from nmnet_ros.datasets import Sequence
+from nmnet_ros.detectors import make_detector
+
+from .conftest import data_dir
+
+
+def test_a_changed_image_and_one_of_the_same_name_elsewhere_get_their_own_features(tmp_path):
+    src = data_dir("strecha-fountain-p11")
+    folder = tmp_path / "seq"
+    (folder / "a").mkdir(parents=True)
+    (folder / "b").mkdir()
+    shutil.copy(src / "camera.yaml", folder / "camera.yaml")
+    shutil.copy(src / "images" / "0000.jpg", folder / "a" / "0000.jpg")
+    shutil.copy(src / "images" / "0001.jpg", folder / "b" / "0000.jpg")  # the same file name, another frame
+    (folder / "images.txt").write_text("0.0 a/0000.jpg\n1.0 b/0000.jpg\n")
+    detector = make_detector("sift")
+    seq = Sequence.load(folder)
+
+    def same(f, g) -> bool:
+        return len(f) == len(g) and np.array_equal(f.keypoints, g.keypoints)
+
+    first = [FeatureCache(detector, tmp_path / "cache")(seq, i) for i in (0, 1)]
+    assert not same(*first) and all(same(f, detector(seq.image(i))) for i, f in enumerate(first))
+    assert all(same(FeatureCache(detector, tmp_path / "cache")(seq, i), f) for i, f in enumerate(first))  # from disk
+    # the first image replaced by another frame (as an edited or re-exported folder): detected again, not the old ones
+    shutil.copy(src / "images" / "0002.jpg", seq.paths[0])
+    os.utime(seq.paths[0], ns=(1, 10**18))
+    again = FeatureCache(detector, tmp_path / "cache")(seq, 0)
+    assert not same(again, first[0]) and same(again, detector(seq.image(0)))
