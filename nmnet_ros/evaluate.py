@@ -14,6 +14,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,13 @@ from .model_fast import precision_note
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, ROBUST, build
+
+
+def _progress(items: list, desc: str, unit: str) -> Iterable:
+    """A progress bar on a terminal (none in a log), as features and methods can take minutes each."""
+    from tqdm import tqdm
+
+    return tqdm(items, desc=desc, unit=unit, file=sys.stderr, disable=None, leave=False)
 
 
 def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, stride: int = 1,
@@ -47,7 +55,9 @@ def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache
             chosen = [chosen[k] for k in np.linspace(0, len(chosen) - 1, max_pairs).round().astype(int)]
         if not chosen:
             raise ValueError(f"{path}: no pairs with ground truth and motion to evaluate")
-        pairs += [make_pair(seq, i, j, cache) for i, j in chosen]
+        t0 = time.perf_counter()
+        pairs += [make_pair(seq, i, j, cache) for i, j in _progress(chosen, f"features {seq.name}", "pair")]
+        print(f"eval: {seq.name}: {len(chosen)} pairs ready in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return pairs
 
 
@@ -65,8 +75,8 @@ def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] 
     for name in methods:
         select = build(name, config, weights)
         runs = seeds if name in ROBUST else 1
-        prfs, errs, secs = [], [], []
-        for p in pairs:
+        prfs, errs, secs, t_method = [], [], [], time.perf_counter()
+        for p in _progress(pairs, name, "pair"):
             c = to_correspondences(p)
             t0 = time.perf_counter()
             sels = [select(c, seed=0) if name in ROBUST else select(c)]
@@ -85,6 +95,7 @@ def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] 
             "pairs": len(pairs), "sec_per_pair": float(np.mean(secs)),
         }
         errors[name] = e.max(2)
+        print(f"eval: {name}: {len(pairs)} pairs x {runs} run(s) in {time.perf_counter() - t_method:.0f} s", file=sys.stderr)
     return {"metrics": out, "errors": errors}
 
 
@@ -183,7 +194,7 @@ def plot_curves(errors: dict[str, np.ndarray], path: Path) -> None:
     axes[1].set_title("0-5 degrees", fontsize=9)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, format="png")  # at this very path, also without a .png suffix
     plt.close(fig)
 
 
@@ -234,8 +245,12 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {args.seeds}")
     if args.refine_iterations < 0:
         raise ValueError(f"--refine-iterations must be >= 0 (0 = off), got {args.refine_iterations}")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
+    for flag, path in (("--json", args.json), ("--plot", args.plot)):  # found now, not after the whole evaluation
+        if path is not None and path.is_dir():
+            example = path / ("eval.json" if flag == "--json" else "eval_curves.png")
+            raise ValueError(f"{flag} {path} is a folder: give a file name, e.g. {example}")
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
     cache = FeatureCache(make_detector(args.detector), args.cache)
     labels = [sequence_label(spec) for spec in args.seqs]
@@ -258,8 +273,8 @@ def main(args: argparse.Namespace) -> int:
         print("\n" + "\n".join(difference_lines(res["errors"], args.reference)))
     if len(set(groups)) > 1:
         print("\n" + per_sequence_table(res["errors"], groups, args.reference))
+    if args.json:  # before the plot: the numbers are what a script reads
+        args.json.write_text(json.dumps(res["metrics"], indent=1))
     plot_curves(res["errors"], args.plot)
     print(f"\nplot: {args.plot}")
-    if args.json:
-        args.json.write_text(json.dumps(res["metrics"], indent=1))
     return 0
