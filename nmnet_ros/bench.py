@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from .cli import whole
+from .cli import output_file, whole
 from .neighbors import compatibility_neighbors, compatibility_neighbors_loop, spatial_neighbors
 
 if TYPE_CHECKING:  # the network and OpenCV load when a benchmark runs, not on import
@@ -266,6 +266,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet bench``."""
+    output_file(args.json, "--json", "bench.json")
     if args.threads is None:
         return _run(args)
     with cpu_threads(args.threads):

@@ -7,6 +7,7 @@ import importlib
 import math
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 # top-level packages that come from the ROS 2 wheels (x86_64 Linux) or a sourced ROS 2 installation
 ROS_PACKAGES = frozenset({"rclpy", "rcl_interfaces", "builtin_interfaces", "sensor_msgs", "geometry_msgs", "std_msgs",
@@ -43,6 +44,21 @@ def bounded(kind: type, least: float, expected: str, strict: bool = False) -> Ca
 def whole(least: int) -> Callable[[str], int]:
     """An argparse type: a whole number >= ``least`` (a count)."""
     return bounded(int, least, f"a whole number >= {least}")
+
+
+def output_file(path: Path | None, flag: str, example: str) -> None:
+    """Before the work: refuse a folder given as an output file and make the file's folder. Found only when the
+    result is written, at the end of minutes of work, either would lose it. ``example``: a file name to suggest."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise ValueError(f"{flag} {path} is a folder: give a file name, e.g. {path / example}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        blocking = next((p for p in (path.parent, *path.parent.parents) if p.exists() and not p.is_dir()), None)
+        why = f"{blocking} is a file, not a folder" if blocking is not None else f"cannot make its folder: {e.strerror or e}"
+        raise ValueError(f"{flag} {path}: {why}") from e
 
 
 def gaps(text: str) -> tuple[int, ...]:

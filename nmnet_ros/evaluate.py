@@ -21,7 +21,7 @@ import numpy as np
 
 from .bf16 import PRECISIONS
 from .cache import FeatureCache
-from .cli import gaps, whole
+from .cli import gaps, output_file, whole
 from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
@@ -245,12 +245,8 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {args.seeds}")
     if args.refine_iterations < 0:
         raise ValueError(f"--refine-iterations must be >= 0 (0 = off), got {args.refine_iterations}")
-    for flag, path in (("--json", args.json), ("--plot", args.plot)):  # found now, not after the whole evaluation
-        if path is not None and path.is_dir():
-            example = path / ("eval.json" if flag == "--json" else "eval_curves.png")
-            raise ValueError(f"{flag} {path} is a folder: give a file name, e.g. {example}")
-        if path is not None:
-            path.parent.mkdir(parents=True, exist_ok=True)
+    output_file(args.json, "--json", "eval.json")
+    output_file(args.plot, "--plot", "eval_curves.png")
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
     cache = FeatureCache(make_detector(args.detector), args.cache)
     labels = [sequence_label(spec) for spec in args.seqs]

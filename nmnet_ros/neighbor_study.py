@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .cache import FeatureCache
-from .cli import gaps, whole
+from .cli import gaps, output_file, whole
 from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .neighbors import compatibility_neighbors, spatial_neighbors
@@ -67,6 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet neighbors``."""
+    output_file(args.json, "--json", "neighbors.json")
     cache = FeatureCache(make_detector(args.detector), args.cache)
     pairs = []
     for spec in args.seqs:

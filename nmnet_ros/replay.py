@@ -22,7 +22,7 @@ import numpy as np
 from .bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
-from .cli import bounded
+from .cli import bounded, output_file
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
@@ -549,12 +549,9 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> Path:
         if same is not None:
             raise ValueError(f"{flag} {path} is an input of this replay ({same}): it would be overwritten; "
                              "choose another path")
-    if args.json is not None:
-        if args.json.resolve() == args.out.resolve():
-            raise ValueError(f"--json {args.json} is also --out: give the summary its own file")
-        if args.json.is_dir():
-            raise ValueError(f"--json {args.json} is a folder: give a file name, e.g. {args.json / 'summary.json'}")
-        args.json.parent.mkdir(parents=True, exist_ok=True)
+    if args.json is not None and args.json.resolve() == args.out.resolve():
+        raise ValueError(f"--json {args.json} is also --out: give the summary its own file")
+    output_file(args.json, "--json", "summary.json")
     if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
         raise ValueError(f"--plots {args.plots} is a file: give a folder for the plots")
     return args.plots or args.out.parent  # --out's folder: its writability is checked as the output is opened

@@ -197,3 +197,20 @@ def test_ros_wheels_are_required_only_where_pypi_has_them():
             assert r.marker is None, r
         assert len(r.specifier) == 1 and next(iter(r.specifier)).operator == "==", f"{r}: not pinned exactly"
     assert {r.name for r in reqs} >= {"ros-rclpy", "torch", "rosbags", "mcap"}
+
+
+@pytest.mark.parametrize("argv, example", [(["bench"], "bench.json"), (["neighbors", "d"], "neighbors.json"),
+                                           (["eval", "d"], "eval.json")])
+def test_an_output_file_that_cannot_be_written_is_refused_before_the_work(argv, example, tmp_path, capsys):
+    """A folder given as --json, or a file in the way of its folder: said at once, not after minutes of work (which
+    the result was lost with); a folder not there yet is made."""
+    from nmnet_ros.cli import main, output_file
+
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    for path, said in ((tmp_path, f"--json {tmp_path} is a folder: give a file name, e.g. {tmp_path / example}"),
+                       (afile / "sub" / "r.json", f"--json {afile / 'sub' / 'r.json'}: {afile} is a file, not a folder")):
+        assert main([*argv, "--json", str(path)]) == 2
+        assert said in capsys.readouterr().err
+    output_file(tmp_path / "new" / "deeper" / "r.json", "--json", example)
+    assert (tmp_path / "new" / "deeper").is_dir()
