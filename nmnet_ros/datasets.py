@@ -98,7 +98,10 @@ def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row]) -
             except Unfit as e:
                 raise DatasetError(f"{path}:{n}: {e} in '{columns}', got {line.strip()!r}") from e
             except (ValueError, IndexError) as e:
-                raise DatasetError(f"{path}:{n}: expected '{columns}', got {line.strip()!r}") from e
+                hint = ("; the columns are separated by commas: this reads whitespace-separated text (for EuRoC's "
+                        "state_groundtruth_estimate0/data.csv, nanoseconds and qw first: `evo_traj euroc data.csv "
+                        "--save_as_tum` writes the TUM file)") if "," in line else ""
+                raise DatasetError(f"{path}:{n}: expected '{columns}', got {line.strip()!r}{hint}") from e
     return rows
 
 

@@ -281,6 +281,11 @@ def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
         Sequence.load(dst)
     with pytest.raises(DatasetError, match=r"nope.txt: missing; expected lines 'timestamp tx ty tz"):
         read_tum(tmp_path / "nope.txt")
+    (tmp_path / "data.csv").write_text("#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w []\n"
+                                       "1403715273262142976,0.878612,2.142470,0.947262,0.060514,-0.828459,-0.058956,-0.553641\n")
+    with pytest.raises(DatasetError, match=r"data.csv:2: expected 'timestamp tx ty tz qx qy qz qw', got .*separated by "
+                                           r"commas.*`evo_traj euroc data.csv --save_as_tum`"):
+        read_tum(tmp_path / "data.csv")  # EuRoC's ground truth, given as it comes
     (tmp_path / "empty.txt").write_text("# timestamp tx ty tz qx qy qz qw\n\n")
     with pytest.raises(DatasetError, match=r"empty.txt: no poses; expected lines 'timestamp tx ty tz"):
         read_tum(tmp_path / "empty.txt")
