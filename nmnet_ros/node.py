@@ -48,7 +48,16 @@ from .debug_view import draw_matches
 from .geometry import Camera, CameraError
 from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
 from .model_fast import precision_note
-from .params import NODE_NAME, PARAMS, STARTUP_ONLY, check_choices, frontend_config, pose_sigmas
+from .params import (
+    NODE_NAME,
+    PARAMS,
+    STARTUP_ONLY,
+    check_choices,
+    frontend_config,
+    not_parameters,
+    params_file_misses,
+    pose_sigmas,
+)
 from .pipeline import FrameResult, Frontend, Prepared, stamp_order, stamp_warning
 from .planes import NOTE as PLANE_NOTE
 from .posemsg import relative_pose_of_current
@@ -116,7 +125,8 @@ class Stats:
 class NMNetNode(Node):
     """rclpy shell around :class:`~nmnet_ros.pipeline.Frontend`."""
 
-    def __init__(self) -> None:
+    def __init__(self, params_files: tuple[str, ...] = ()) -> None:
+        """``params_files``: the ``--params-file`` arguments, checked for a section that applies to this node."""
         super().__init__(NODE_NAME)
         for name, (default, desc, rng) in PARAMS.items():
             d = ParameterDescriptor(description=desc)
@@ -131,6 +141,12 @@ class NMNetNode(Node):
             self.declare_parameter(name, default, d)
         p = {name: self.get_parameter(name).value for name in PARAMS}
         check_choices(p)
+        # rclpy ignores, silently, a name the node does not declare and a file whose sections are for other nodes
+        for said in not_parameters(getattr(self, "_parameter_overrides", {})):  # every -p and file value for this node
+            self.get_logger().warning(said)
+        for path in params_files:
+            if (said := params_file_misses(path, self.get_fully_qualified_name())) is not None:
+                self.get_logger().warning(said)
         self.params = p
         import torch
 
@@ -509,12 +525,22 @@ class NMNetNode(Node):
             w.join(timeout=5.0)
 
 
+def params_files_of(argv: list[str]) -> tuple[str, ...]:
+    """The ``--params-file`` values among the ROS arguments (after ``--ros-args``, up to a ``--``)."""
+    if "--ros-args" not in argv:
+        return ()
+    ros = argv[argv.index("--ros-args") + 1:]
+    ros = ros[:ros.index("--")] if "--" in ros else ros
+    return tuple(ros[i + 1] for i, a in enumerate(ros[:-1]) if a == "--params-file")
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``nmnet_node`` / ``python -m nmnet_ros.node``."""
-    rclpy.init(args=sys.argv if args is None else args)
+    argv = sys.argv if args is None else args
+    rclpy.init(args=argv)
     node = None
     try:
-        node = NMNetNode()
+        node = NMNetNode(params_files_of(argv))
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

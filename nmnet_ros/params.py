@@ -6,7 +6,9 @@ ROS-free, so the offline tools read the same parameters files as the node: ``nmn
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import difflib
+import fnmatch
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import yaml
@@ -108,6 +110,7 @@ def check_choices(p: dict) -> None:
 
 NODE_NAME = "nmnet_node"
 ROS_COMMON = ("use_sim_time",)  # parameters every ROS 2 node has: allowed in a file, nothing to do offline
+ROS_BUILTIN = ("start_type_description_service",)  # rclpy declares it too (and qos_overrides.*)
 
 
 _TYPE_NAMES = {bool: "a bool", int: "an integer", float: "a float", str: "a string"}
@@ -151,6 +154,63 @@ def _sections(doc: object, path: Path) -> list[dict]:
         raise ParamsFileError(f"{path}: sections for several nodes ({', '.join(sorted(nodes))}); a replay is one camera's: "
                               "give a file with that camera's section (and /** for what they share)")
     return found
+
+
+def not_parameters(names: Iterable[str]) -> list[str]:
+    """What to say of names given to the node as parameters (``-p``, a parameters file) that it does not have: rclpy
+    ignores them without a word, so a misspelt one (``max_keypoint``) left the default in force unseen."""
+    said = []
+    for name in names:
+        if name in PARAMS or name in ROS_COMMON or name in ROS_BUILTIN or name.startswith("qos_overrides."):
+            continue
+        near = difflib.get_close_matches(name, PARAMS, n=1)
+        said.append(f"{name!r} is not an {NODE_NAME} parameter: ignored" + (f"; did you mean {near[0]!r}?" if near else "")
+                    + " (the list: nmnet_node --help)")
+    return said
+
+
+def file_sections(doc: object) -> list[tuple[str, dict]]:
+    """(node name, ``ros__parameters``) of every section of a ROS 2 parameters file; nested namespaces are joined."""
+    found: list[tuple[str, dict]] = []
+
+    def walk(name: str, body: object) -> None:
+        if not isinstance(body, dict):
+            return
+        if isinstance(body.get("ros__parameters"), dict):
+            found.append((name, body["ros__parameters"]))
+        for key, inner in body.items():
+            if key != "ros__parameters":
+                walk(f"{name}/{str(key).strip('/')}", inner)
+
+    for key, body in (doc.items() if isinstance(doc, dict) else ()):
+        walk("/" + str(key).strip("/"), body)
+    return found
+
+
+def section_applies(name: str, node: str) -> bool:
+    """Whether a parameters file's section (``/**``, ``nmnet_node``, ``/front/*``) applies to the node of fully
+    qualified name ``node``, as rcl matches them: ``*`` stands for one name, ``**`` for any number."""
+    def match(pattern: list[str], names: list[str]) -> bool:
+        if not pattern:
+            return not names
+        if pattern[0] == "**":
+            return any(match(pattern[1:], names[i:]) for i in range(len(names) + 1))
+        return bool(names) and fnmatch.fnmatchcase(names[0], pattern[0]) and match(pattern[1:], names[1:])
+
+    return match([t for t in name.split("/") if t], [t for t in node.split("/") if t])
+
+
+def params_file_misses(path: Path, node: str) -> str | None:
+    """What to say when a parameters file given to the node has no section for it (rclpy applies none of it, silently:
+    a section keyed ``nmnet`` or another node's name); None when one applies or the file cannot be read (rcl said)."""
+    try:
+        sections = file_sections(yaml.safe_load(Path(path).read_text()))
+    except (OSError, yaml.YAMLError):
+        return None
+    if any(section_applies(name, node) for name, _ in sections):
+        return None
+    return (f"{path}: no section applies to {node} (sections: {', '.join(n for n, _ in sections) or 'none'}): none of its "
+            f"parameters are in force; key them /** or {node} (config/nmnet.yaml's form)")
 
 
 def read_params_file(path: Path, warn: Callable[[str], None] = print) -> dict:

@@ -539,8 +539,11 @@ def test_parameters_from_yaml_and_command_line(ros, tmp_path):
     yaml_file.write_text("nmnet_node:\n  ros__parameters:\n    k: 4\n    pose_refine_iterations: 3\n"  # before /**: loses
                          "/**:\n  ros__parameters:\n    max_keypoints: 500\n    score_threshold: 0.7\n    qos: reliable\n"
                          "    pose_threshold_px: 0.8\n    pose_refine_iterations: 0\n"
-                         "/nmnet_node:\n  ros__parameters:\n    k: 6\n")  # after /**: wins
-    node_args = ["--ros-args", "--params-file", str(yaml_file), "-p", "max_keypoints:=300"]
+                         "/nmnet_node:\n  ros__parameters:\n    k: 6\n    max_keypoint: 100\n")  # after /**: wins; a typo
+    other = tmp_path / "driver.yaml"  # a file for other nodes only: rclpy applies none of it, without a word
+    other.write_text("camera_driver:\n  ros__parameters:\n    fps: 30\nnmnet:\n  ros__parameters:\n    k: 2\n")
+    node_args = ["--ros-args", "--params-file", str(yaml_file), "--params-file", str(other), "-p", "max_keypoints:=300",
+                 "-p", "score_treshold:=0.2"]
     with node_and_peer(ros, tmp_path, node_args, signal.SIGINT, reliable=True) as (node, peer):
         peer.wait_connected()
         got = get_params(peer, ["max_keypoints", "score_threshold", "qos", "k", "pose_threshold_px", "pose_refine_iterations"])
@@ -551,6 +554,11 @@ def test_parameters_from_yaml_and_command_line(ros, tmp_path):
         assert {name: offline[name] for name in got} == {**got, "max_keypoints": 500}  # 300 came from -p
         peer.first_frame(kitti_info(seq), image_msg(seq.image(0), 1.0))
         assert 0 < int(peer.diag_values()["keypoints"]) <= 300  # the -p value reached the detector
+    out = node.output()  # what rclpy ignored, said: the misspelt names, the file without a section for the node
+    assert "'max_keypoint' is not an nmnet_node parameter: ignored; did you mean 'max_keypoints'?" in out
+    assert "'score_treshold' is not an nmnet_node parameter: ignored; did you mean 'score_threshold'?" in out
+    assert f"{other}: no section applies to /nmnet_node (sections: /camera_driver, /nmnet)" in out
+    assert f"{yaml_file}: no section" not in out and "'k' is not" not in out and "use_sim_time" not in out
 
 
 def set_params(peer: Peer, values: dict) -> list:

@@ -70,3 +70,18 @@ def test_a_live_replay_hands_the_node_the_file_then_the_options_given():
     args = p.parse_args(["bag", "--out", "o.mcap", "--params-file", "mine.yaml", "--max-keypoints", "500", "--rectified"])
     assert live_node_args(args) == ["--params-file", "mine.yaml", "-p", "max_keypoints:=500", "-p", "rectified:=true"]
     assert live_node_args(p.parse_args(["bag", "--out", "o.mcap"])) == []
+
+
+def test_which_parameters_file_sections_reach_a_node_as_rcl_matches_them():
+    """Checked against rcl on 2026-12-04 (rclpy 9.1.2, a node /front/nmnet_node and /nmnet_node): the same verdicts."""
+    from nmnet_ros.params import file_sections, not_parameters, section_applies
+
+    for name, front, root in (("/**", True, True), ("**", True, True), ("nmnet_node", False, True), ("/nmnet_node", False, True),
+                              ("front/nmnet_node", True, False), ("/front/*", True, False), ("/**/nmnet_node", True, True),
+                              ("/*/nmnet_node", True, False), ("/nmnet", False, False), ("/camera_driver", False, False)):
+        assert (section_applies(name, "/front/nmnet_node"), section_applies(name, "/nmnet_node")) == (front, root), name
+    doc = {"front": {"nmnet_node": {"ros__parameters": {"k": 4}}}, "/**": {"ros__parameters": {"k": 8}}, "x": 3}
+    assert file_sections(doc) == [("/front/nmnet_node", {"k": 4}), ("/**", {"k": 8})] and file_sections([1]) == []
+    said = not_parameters(["max_keypoint", "k", "use_sim_time", "qos_overrides./image.subscription.depth", "zzz"])
+    assert said == ["'max_keypoint' is not an nmnet_node parameter: ignored; did you mean 'max_keypoints'? "
+                    "(the list: nmnet_node --help)", "'zzz' is not an nmnet_node parameter: ignored (the list: nmnet_node --help)"]
