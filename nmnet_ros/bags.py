@@ -50,6 +50,7 @@ class Frame:
     error: str | None
     camera: Camera | None
     camera_error: str | None = None  # why the latest camera_info was refused, when it was
+    frame_id: str = ""  # the image header's: the frame the node's outputs name
 
 
 @dataclass
@@ -489,7 +490,7 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
 
     def gen() -> Iterator[Frame]:
         camera, camera_error = None, None
-        pending: list[tuple[float, np.ndarray | None, str | None]] = []
+        pending: list[tuple[float, np.ndarray | None, str | None, str]] = []
         first: int | None = None  # the first frame's recording time (ns)
         for m in reader.messages({t for t in (img_t, info_t) if t}):
             if m.topic == info_t:
@@ -507,13 +508,13 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
                 img, err = decode_image_msg(m.msg, m.msgtype), None
             except ImageError as e:
                 img, err = None, str(e)
-            pending.append((m.log_time_ns / 1e9 if recorded else msg_time(m.msg), img, err))
+            pending.append((m.log_time_ns / 1e9 if recorded else msg_time(m.msg), img, err, m.msg.header.frame_id))
             # camera_info shares the image stamp and may come just after it
             while len(pending) > 1:
-                s, im, er = pending.pop(0)
-                yield Frame(s, im, er, camera, camera_error)
-        for s, im, er in pending:
-            yield Frame(s, im, er, camera, camera_error)
+                s, im, er, fid = pending.pop(0)
+                yield Frame(s, im, er, camera, camera_error, fid)
+        for s, im, er, fid in pending:
+            yield Frame(s, im, er, camera, camera_error, fid)
 
     return gen(), chosen
 

@@ -264,7 +264,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             if want_overlay:
                 overlay = dbg
             if out is not None:
-                out.write_result(r, f.stamp, debug=dbg if debug_images else None)
+                out.write_result(r, f.stamp, f.frame_id, debug=dbg if debug_images else None)  # the node's header
     finally:
         run.seconds = time.perf_counter() - t0
         if bar is not None:

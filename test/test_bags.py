@@ -696,6 +696,24 @@ def test_a_bag_without_ground_truth_gets_the_match_picture_and_no_empty_plots(ra
     assert r.returncode == 0 and "1/1 frames" in r.stdout and "plot:" not in r.stdout and not list(one.glob("*.png"))
 
 
+def test_an_offline_replays_outputs_name_the_images_frame_as_the_nodes_do(raw_bag, tmp_path):
+    """The node's outputs carry the image's header; an offline replay wrote "camera" whatever the images named."""
+    bag = tmp_path / "front"
+
+    def rename(topic, msg):
+        if topic == "/camera/image_raw":
+            msg.header.frame_id = "front_camera_optical_frame"
+        return msg
+
+    rewrite_bag(raw_bag, bag, rename)
+    r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--duration", "0.25", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    out = BagReader(tmp_path / "o.mcap")
+    frames = {(m.topic, m.msg.header.frame_id) for m in out.messages(set(out.topics))}
+    assert frames == {("/nmnet_node/matches", "front_camera_optical_frame"),
+                      ("/nmnet_node/relative_pose", "front_camera_optical_frame")}
+
+
 def test_a_refused_camera_info_is_named_then_counted_for_the_frames_it_stops(raw_bag, tmp_path):
     def fov(topic, msg):
         if topic.endswith("camera_info"):
