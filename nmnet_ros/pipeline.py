@@ -79,6 +79,9 @@ def _check_choices(c: dict) -> None:
     for key, choices in (("match_stage", MATCH_STAGES), ("match_gemm", PRECISIONS)):
         if c[key] not in choices:
             raise ValueError(f"{key} must be one of {', '.join(choices)}, got {c[key]!r}")
+    if c["selector"] == "oracle":  # it selects by ground-truth labels, which only sequence folders have (nmnet eval)
+        raise ValueError("selector 'oracle' needs each match's ground-truth label, which only `nmnet eval` on sequence "
+                         "folders has: on frames it would select nothing; choose another (see nmnet eval)")
     if not isinstance(c["resize_width"], (int, np.integer)) or c["resize_width"] < 0:
         raise ValueError(f"resize_width must be a width in pixels >= 0 (0: full resolution), got {c['resize_width']!r}")
 

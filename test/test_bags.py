@@ -807,6 +807,13 @@ def test_replay_options_that_set_node_parameters_are_checked_as_the_node_checks_
     assert summaries["0.5"]["auc5"] == summaries["0"]["auc5"]  # the same poses
 
 
+def test_the_oracle_selector_is_refused_by_replay_as_it_needs_ground_truth_labels(raw_bag, tmp_path):
+    """On a bag's frames the oracle has no labels: it selected nothing and reported every pose as 180 degrees off."""
+    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "o.mcap"), "--selector", "oracle")
+    assert r.returncode == 2 and "selector 'oracle' needs each match's ground-truth label" in r.stderr, r.stderr
+    assert not (tmp_path / "o.mcap").exists()
+
+
 def test_start_and_duration_replay_a_part_of_the_bag(raw_bag, tmp_path):
     """--start/--duration (seconds after the first frame, by recording time, as ros2 bag play's --start-offset) replay
     that part only, offline and live, with the calibration recorded before it; a window after the bag's end is said,
