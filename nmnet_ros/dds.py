@@ -45,6 +45,19 @@ def silence_advice(subscribed_reliable: bool, publishers_reliable: list[bool]) -
     return "the camera may have stopped publishing"
 
 
+def mistyped_advice(topic: str, their_types: list[str], compressed: bool) -> str:
+    """For an image topic whose publishers all send another message type than the node subscribes (which DDS never
+    delivers): what they send and the settings that take it (``-r image:=.../compressed`` without use_compressed)."""
+    ours = IMAGE_TYPES[compressed]
+    theirs = ", ".join(sorted(set(their_types)))
+    if IMAGE_TYPES[not compressed] in their_types:
+        fix = (f"set -p use_compressed:=false -r image:={topic}" if compressed
+               else f"set -p use_compressed:=true -r image/compressed:={topic}")
+    else:
+        fix = "remap the input to a topic of camera frames (sensor_msgs/msg/Image or CompressedImage)"
+    return f"{topic} is published as {theirs} but this node subscribes {ours}, so no frame can arrive: {fix}"
+
+
 DEPTH_ADVICE = ("nmnet_node detects features in camera frames, not in depth images: remap its input to the camera's "
                 "colour, mono or infrared stream")
 

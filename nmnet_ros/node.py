@@ -43,10 +43,19 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, Poi
 from std_srvs.srv import Trigger
 
 from .caminfo import camera_from_info, fit_camera
-from .dds import DEPTH_ADVICE, LARGE_FRAME_BYTES, follow_reliability, is_depth, large_frames_advice, silence_advice, where_are_the_images
+from .dds import (
+    DEPTH_ADVICE,
+    LARGE_FRAME_BYTES,
+    follow_reliability,
+    is_depth,
+    large_frames_advice,
+    mistyped_advice,
+    silence_advice,
+    where_are_the_images,
+)
 from .debug_view import draw_matches
 from .geometry import Camera, CameraError
-from .imgconv import ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
+from .imgconv import IMAGE_TYPES, ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
 from .model_fast import precision_note
 from .params import (
     NODE_NAME,
@@ -172,6 +181,7 @@ class NMNetNode(Node):
         self._subscribe_image(reliable=p["qos"] == "reliable")
         self._silent_s = 0  # seconds with image publishers but no frame
         self._unpublished_s = 0  # seconds without any publisher on the image topic
+        self._mistyped_s = 0  # seconds with publishers on it, all of another message type
         self._clockless_s = 0  # seconds under use_sim_time without a publisher on /clock
         self._received_before = 0
         self._large_hint = False
@@ -270,13 +280,20 @@ class NMNetNode(Node):
         frames stop, diagnostics."""
         self._follow_latched_info()
         topic = self._image_sub.topic_name
-        offers = [i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in self.get_publishers_info_by_topic(topic)]
+        ours = IMAGE_TYPES[self._image_type is CompressedImage]
+        publishers = self.get_publishers_info_by_topic(topic)
+        offers = [i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in publishers if i.topic_type == ours]
+        others = [i.topic_type for i in publishers if i.topic_type != ours]  # DDS delivers them nothing
+        self._mistyped_s = self._mistyped_s + 1 if others and not offers else 0
+        if self._mistyped_s:
+            self._warn_lasting("wrong_type", self._mistyped_s - 1, 30, lambda: (
+                mistyped_advice(topic, others, self._image_type is CompressedImage)))
         want_reliable = follow_reliability(offers)
         if self.params["qos"] == "auto" and want_reliable != self.image_reliable:
             self._subscribe_image(want_reliable)
             self.get_logger().info(f"image publishers on {topic}: {sum(offers)} of {len(offers)} reliable; subscribing "
                                    + ("reliable" if self.image_reliable else "best effort"))
-        self._unpublished_s = 0 if offers else self._unpublished_s + 1
+        self._unpublished_s = 0 if offers or others else self._unpublished_s + 1
         if self._unpublished_s >= 10:
             self._warn_lasting("no_publisher", self._unpublished_s - 10, 60, lambda: (
                 f"no publisher on {topic} for {self._unpublished_s} s: " + where_are_the_images(

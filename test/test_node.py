@@ -468,6 +468,28 @@ def test_a_node_nobody_publishes_to_names_the_image_topics_there_are(ros, tmp_pa
 
 
 
+def test_a_compressed_topic_remapped_as_the_raw_input_is_explained(ros, tmp_path):
+    """-r image:=.../compressed without use_compressed:=true: DDS delivers nothing across message types; the node said
+    "the camera may have stopped publishing". It now names both types and the settings, within seconds."""
+    topic = "/cam/image_raw/compressed"
+    with node_and_peer(ros, tmp_path, ["--ros-args", "-r", f"image:={topic}"], image_topic="/cam/image_raw",
+                       compressed=True) as (node, peer):
+        assert spin_until(peer.node, lambda: peer.count("warn_wrong_type") > 0, 20.0), peer.diag_values()
+        assert peer.count("warn_no_frames") == 0 and peer.count("warn_no_publisher") == 0
+    assert (f"{topic} is published as sensor_msgs/msg/CompressedImage but this node subscribes sensor_msgs/msg/Image, so "
+            f"no frame can arrive: set -p use_compressed:=true -r image/compressed:={topic}") in node.output()
+
+
+def test_the_advice_for_another_message_type_fits_each_direction():
+    from nmnet_ros.dds import mistyped_advice
+
+    assert mistyped_advice("/cam/image_raw", ["sensor_msgs/msg/Image"], True).endswith(
+        "subscribes sensor_msgs/msg/CompressedImage, so no frame can arrive: set -p use_compressed:=false -r image:=/cam/image_raw")
+    assert mistyped_advice("/scan", ["sensor_msgs/msg/LaserScan"], False) == (
+        "/scan is published as sensor_msgs/msg/LaserScan but this node subscribes sensor_msgs/msg/Image, so no frame can "
+        "arrive: remap the input to a topic of camera frames (sensor_msgs/msg/Image or CompressedImage)")
+
+
 def test_a_depth_topic_remapped_as_the_image_is_pointed_out_at_start_up(ros, tmp_path):
     """An RGB-D camera's depth image (16UC1, which the node reads as a mono frame) remapped as the node's input: said
     at start-up, naming the topic."""
