@@ -6,7 +6,7 @@ import argparse
 import importlib
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 # top-level packages that come from the ROS 2 wheels (x86_64 Linux) or a sourced ROS 2 installation
@@ -59,6 +59,13 @@ def output_file(path: Path | None, flag: str, example: str) -> None:
         blocking = next((p for p in (path.parent, *path.parent.parents) if p.exists() and not p.is_dir()), None)
         why = f"{blocking} is a file, not a folder" if blocking is not None else f"cannot make its folder: {e.strerror or e}"
         raise ValueError(f"{flag} {path}: {why}") from e
+
+
+def progress(items: list, desc: str, unit: str) -> Iterable:
+    """A progress bar on a terminal (none in a log) for the tools' long loops: features and methods take minutes."""
+    from tqdm import tqdm
+
+    return tqdm(items, desc=desc, unit=unit, file=sys.stderr, disable=None, leave=False)
 
 
 def gaps(text: str) -> tuple[int, ...]:

@@ -14,14 +14,13 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
 from .bf16 import PRECISIONS
 from .cache import FeatureCache
-from .cli import gaps, output_file, whole
+from .cli import gaps, output_file, progress, whole
 from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
@@ -30,13 +29,6 @@ from .model_fast import precision_note
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, ROBUST, build
-
-
-def _progress(items: list, desc: str, unit: str) -> Iterable:
-    """A progress bar on a terminal (none in a log), as features and methods can take minutes each."""
-    from tqdm import tqdm
-
-    return tqdm(items, desc=desc, unit=unit, file=sys.stderr, disable=None, leave=False)
 
 
 def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, stride: int = 1,
@@ -56,7 +48,7 @@ def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache
         if not chosen:
             raise ValueError(f"{path}: no pairs with ground truth and motion to evaluate")
         t0 = time.perf_counter()
-        pairs += [make_pair(seq, i, j, cache) for i, j in _progress(chosen, f"features {seq.name}", "pair")]
+        pairs += [make_pair(seq, i, j, cache) for i, j in progress(chosen, f"features {seq.name}", "pair")]
         print(f"eval: {seq.name}: {len(chosen)} pairs ready in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return pairs
 
@@ -76,7 +68,7 @@ def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] 
         select = build(name, config, weights)
         runs = seeds if name in ROBUST else 1
         prfs, errs, secs, t_method = [], [], [], time.perf_counter()
-        for p in _progress(pairs, name, "pair"):
+        for p in progress(pairs, name, "pair"):
             c = to_correspondences(p)
             t0 = time.perf_counter()
             sels = [select(c, seed=0) if name in ROBUST else select(c)]

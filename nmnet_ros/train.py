@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from .cache import FeatureCache
-from .cli import gaps, whole
+from .cli import gaps, progress, whole
 from .datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
@@ -77,10 +77,13 @@ def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min
         if note := seq.uncovered_note():
             log(f"  warning: {note}")
         chosen = select_pairs(seq, gaps, frames)
-        made = (make_pair(seq, i, j, cache, label_threshold=label_threshold) for i, j in chosen)
+        t0 = time.perf_counter()
+        made = (make_pair(seq, i, j, cache, label_threshold=label_threshold)
+                for i, j in progress(chosen, f"features {seq.name}", "pair"))  # minutes on a fresh cache
         kept = [p for p in made if p.labels.sum() >= min_inliers]
         ratio = np.mean([p.labels.mean() for p in kept]) if kept else 0.0
-        log(f"  {spec}: {len(kept)} pairs (of {len(chosen)}), mean inlier ratio {100 * ratio:.1f}%")
+        log(f"  {spec}: {len(kept)} pairs (of {len(chosen)}), mean inlier ratio {100 * ratio:.1f}%, "
+            f"ready in {time.perf_counter() - t0:.0f} s")
         out.extend(kept)
     return out
 

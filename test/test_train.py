@@ -67,6 +67,7 @@ def test_train_few_steps_then_resume(tmp_path):
     said: list[str] = []
     s = train(spec_train, spec_val, tmp_path, cfg, resume=True, cache_dir=tmp_path / "cache", log=said.append)
     assert s["train_pairs"] == 1 and s["val_pairs"] == 1 and "does not exist yet, so this is a new run" in said[0]
+    assert any(line.startswith(f"  {spec_train[0]}: 1 pairs (of 1)") and "ready in" in line for line in said), said
     model = load_model(tmp_path / "best.pt")
     assert not model.training
     best = (tmp_path / "best.pt").read_bytes()
