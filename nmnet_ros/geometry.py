@@ -47,6 +47,8 @@ class Camera:
         self.K = np.asarray(self.K, np.float64)
         self.dist = np.asarray(self.dist, np.float64).ravel()
         self.model = self.model or "plumb_bob"  # an empty distortion_model is the usual "no distortion"
+        if self.model not in DISTORTION_MODELS and not self.dist.any():  # no coefficients, or all 0: none in any model
+            self.model, self.dist = "plumb_bob", np.zeros(0)  # (RealSense's inverse_brown_conrady, a driver's "none")
         if self.model not in DISTORTION_MODELS:
             raise CameraError(f"distortion model {self.model!r} is not supported; use one of {', '.join(DISTORTION_MODELS)}, "
                               "or rectify the images and publish zero distortion")

@@ -717,7 +717,7 @@ def test_an_offline_replays_outputs_name_the_images_frame_as_the_nodes_do(raw_ba
 def test_a_refused_camera_info_is_named_then_counted_for_the_frames_it_stops(raw_bag, tmp_path):
     def fov(topic, msg):
         if topic.endswith("camera_info"):
-            msg.distortion_model = "fov"
+            msg.distortion_model, msg.d = "fov", np.array([0.9])  # a lens model the replay cannot undistort
         return msg
 
     bag = tmp_path / "fov"

@@ -291,6 +291,16 @@ def test_unsupported_distortion_is_refused_by_name(model, dist, msg):
     assert msg in str(err.value)
 
 
+@pytest.mark.parametrize("model, dist", [("inverse_brown_conrady", [0.0] * 5), ("none", []), ("fov", [0.0])])
+def test_a_model_not_supported_without_distortion_is_taken_as_none(model, dist):
+    """Zero coefficients mean no distortion in any model: RealSense's inverse_brown_conrady with zeros (ROS 1 bags),
+    a driver's "none". They were refused, and no frame of such a camera was processed."""
+    cam = Camera(K, dist, model=model)
+    px = np.array([[10.0, 20.0], [600.0, 400.0]])
+    assert cam.model == "plumb_bob"
+    np.testing.assert_allclose(cam.normalize(px), Camera(K, []).normalize(px), atol=0)
+
+
 def test_a_four_coefficient_plumb_bob_is_padded_with_zeros_for_camera_info():
     np.testing.assert_array_equal(Camera(K, [0.1, 0.2, 0.3, 0.4]).distortion_for_msg(), [0.1, 0.2, 0.3, 0.4, 0.0])
     np.testing.assert_array_equal(Camera(K, [0.1, 0.2, 0.3, 0.4], model="equidistant").distortion_for_msg(),

@@ -246,7 +246,7 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
         peer.pub_info.publish(nan_k)
         assert wait_diag(peer, "warn_bad_camera_info", 2)
         fov = kitti_info(seq)
-        fov.distortion_model = "fov"  # a lens model the node cannot undistort
+        fov.distortion_model, fov.d = "fov", [0.9]  # a lens model the node cannot undistort
         peer.pub_info.publish(fov)
         assert wait_diag(peer, "warn_bad_camera_info", 3)
         peer.pub_info.publish(info)
