@@ -104,7 +104,9 @@ def load_model(path: str | Path | None = None, variant: str = "nmnet") -> NMNet:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - torch raises many types for bad files
-        raise WeightsError(f"{path}: cannot read weights ({e})") from e
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise WeightsError(f"{path}: cannot read weights: not a checkpoint written by `nmnet train` (the shipped "
+                           f"nmnet_ros/weights/nmnet.pt is one), or a damaged one (torch.load: {first})") from e
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
         raise WeightsError(f"{path}: not an NM-Net checkpoint (no 'state_dict')")
     model = NMNet(ckpt.get("config"))
