@@ -116,7 +116,7 @@ def test_stricter_label_threshold_keeps_a_subset_of_the_inliers(tmp_path):
 
 
 @pytest.mark.parametrize(("init", "match"), [("missing.pt", "--init .*missing.pt: weights file not found"),
-                                             ("text.pt", "--init .*text.pt: cannot read weights: not a checkpoint written by `nmnet train`"),
+                                             ("text.pt", "--init .*text.pt: cannot read weights: not a checkpoint written by `nmnet"),
                                              ("dict.pt", "--init .*dict.pt: not an NM-Net checkpoint"),
                                              ("nmnet-sp", "spatial neighbours; it does not fit this --variant")])
 def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
