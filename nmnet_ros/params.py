@@ -138,16 +138,17 @@ def check_value(name: str, value: object) -> str | None:
 
 
 def _sections(doc: object, path: Path) -> list[dict]:
-    """The ``ros__parameters`` mappings of a ROS 2 parameters file that apply to the node, in file order."""
+    """The ``ros__parameters`` mappings of a ROS 2 parameters file that apply to the node in some namespace (a replay
+    is one camera's: ``/**``, ``nmnet_node``, ``/front/nmnet_node``, ``/front/*``), in file order."""
     if not isinstance(doc, dict):
         raise ParamsFileError(f"{path}: not a ROS 2 parameters file (a mapping of node names to ros__parameters)")
     found, nodes = [], set()
-    for key, body in doc.items():
-        name = str(key).strip("/").split("/")[-1]
-        if name in ("**", NODE_NAME) and isinstance(body, dict) and isinstance(body.get("ros__parameters"), dict):
-            found.append(body["ros__parameters"])
-            if name == NODE_NAME and "*" not in str(key):
-                nodes.add("/" + str(key).strip("/"))
+    for name, params in file_sections(doc):
+        last = name.rsplit("/", 1)[-1]
+        if last == "**" or fnmatch.fnmatchcase(NODE_NAME, last):
+            found.append(params)
+            if "*" not in name:
+                nodes.add(name)
     if not found:
         raise ParamsFileError(f"{path}: no ros__parameters for /** or {NODE_NAME} (found: {', '.join(map(str, doc)) or 'nothing'})")
     if len(nodes) > 1:  # a robot's file for several cameras: which one's values a replay takes is not for us to guess
@@ -229,10 +230,10 @@ def read_params_file(path: Path, warn: Callable[[str], None] = print) -> dict:
         raise ParamsFileError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from e
     values = {name: default for name, (default, _, _) in PARAMS.items()}
     for section in _sections(doc, path):
+        for said in not_parameters(section):  # as the node says it (and as rclpy, ignores the name)
+            warn(f"{path}: {said}")
         for name, value in section.items():
             if name not in PARAMS:
-                if name not in ROS_COMMON:
-                    warn(f"{path}: {name!r} is not an {NODE_NAME} parameter: ignored (the list: README, Parameters)")
                 continue
             if (why := check_value(name, value)) is not None:
                 raise ParamsFileError(f"{path}: {why}")

@@ -34,8 +34,13 @@ def test_sections_for_the_node_apply_in_file_order_and_others_are_ignored(tmp_pa
     warnings = []
     got = read_params_file(f, warn=warnings.append)
     assert got == {**DEFAULTS, "max_keypoints": 700, "pose_estimator": "classic"}
-    assert warnings == [f"{f}: 'max_keypoint' is not an nmnet_node parameter: ignored (the list: README, Parameters)"]
+    assert warnings == [f"{f}: 'max_keypoint' is not an nmnet_node parameter: ignored; did you mean 'max_keypoints'? "
+                        "(the list: nmnet_node --help)"]  # as the node says it
     assert frontend_config(got)["selector"] == "ratio+magsac"
+    # the forms the node takes in a namespace: nested, and a wildcard for the node's name (read as rcl reads them)
+    for text in ("front:\n  nmnet_node:\n    ros__parameters:\n      k: 5\n", "/front/*:\n  ros__parameters:\n    k: 5\n"):
+        f.write_text(text)
+        assert read_params_file(f)["k"] == 5, text
 
 
 @pytest.mark.parametrize(("text", "match"), [
