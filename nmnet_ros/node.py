@@ -280,14 +280,15 @@ class NMNetNode(Node):
         frames stop, diagnostics."""
         self._follow_latched_info()
         topic = self._image_sub.topic_name
-        ours = IMAGE_TYPES[self._image_type is CompressedImage]
+        compressed = self.params["use_compressed"]  # read-only: the subscription's type for the node's life
+        ours = IMAGE_TYPES[compressed]
         publishers = self.get_publishers_info_by_topic(topic)
         offers = [i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in publishers if i.topic_type == ours]
         others = [i.topic_type for i in publishers if i.topic_type != ours]  # DDS delivers them nothing
         self._mistyped_s = self._mistyped_s + 1 if others and not offers else 0
         if self._mistyped_s:
             self._warn_lasting("wrong_type", self._mistyped_s - 1, 30, lambda: (
-                mistyped_advice(topic, others, self._image_type is CompressedImage)))
+                mistyped_advice(topic, others, compressed)))
         want_reliable = follow_reliability(offers)
         if self.params["qos"] == "auto" and want_reliable != self.image_reliable:
             self._subscribe_image(want_reliable)
@@ -297,7 +298,7 @@ class NMNetNode(Node):
         if self._unpublished_s >= 10:
             self._warn_lasting("no_publisher", self._unpublished_s - 10, 60, lambda: (
                 f"no publisher on {topic} for {self._unpublished_s} s: " + where_are_the_images(
-                    self.get_topic_names_and_types(), {topic, self.pub_debug.topic_name}, self._image_type is CompressedImage)))
+                    self.get_topic_names_and_types(), {topic, self.pub_debug.topic_name}, compressed)))
         self._silent_s = self._silent_s + 1 if offers and self.stats.received == self._received_before else 0
         self._received_before = self.stats.received
         if self._silent_s >= 5:
