@@ -451,7 +451,6 @@ def test_live_replay_agrees_with_offline(tmp_path):
         assert s_live["tracks"]["count"] > 0
 
 
-
 @contextmanager
 def live_replay_playing(tmp_path: Path, seconds: float):
     """``nmnet replay --live`` of the sample bag at 1 frame a second (output ``live.mcap``, ``s.json``, log
@@ -511,6 +510,7 @@ def test_a_live_replay_whose_node_dies_says_so_and_stops(tmp_path):
     assert summary["node_exit_code"] == -9 and 2 <= summary["frames"] < 20 and summary["processed"] >= 2, summary
     assert read_output(tmp_path / "live.mcap")["/nmnet_node/matches"] == summary["processed"]
 
+
 def test_two_live_replays_on_one_domain_do_not_hear_each_other(tmp_path):
     """Two live replays at once on the same ROS_DOMAIN_ID (two runs that drew the same random domain, or a domain the
     user set): each records only its own node's results. They shared /live/image, /nmnet_node/matches and
@@ -541,6 +541,7 @@ def test_two_live_replays_on_one_domain_do_not_hear_each_other(tmp_path):
         assert len(stamps[name]) == s["processed"] >= 10, (name, s)
     assert max(stamps["first"]) < min(stamps["second"])  # each holds its own part of the bag only
 
+
 def test_live_replay_delivers_raw_frames_over_half_a_megabyte(tmp_path):
     """Raw 768x512 bgr8 frames (1.2 MB) reach the node: the player runs with the shipped large-frames profile.
 
@@ -556,7 +557,6 @@ def test_live_replay_delivers_raw_frames_over_half_a_megabyte(tmp_path):
     print(s)
     assert s["frames"] == 6 and s["processed"] == 6, s
     assert read_output(tmp_path / "live.mcap")["/nmnet_node/matches"] == 6
-
 
 
 def test_a_standing_camera_is_scored_on_its_rotation(tmp_path):
@@ -576,6 +576,7 @@ def test_a_standing_camera_is_scored_on_its_rotation(tmp_path):
     live = recording_summary(tmp_path / "o.mcap", bag_ground_truth(BagReader(bag), "/ground_truth/pose"))[0]
     assert live["still_pairs"] == 20 and live["median_still_rot_deg"] < 0.02, live  # every pair, as offline
 
+
 def test_a_summary_without_scored_pairs_is_strict_json():
     from nmnet_ros.replay import summary_json
 
@@ -585,7 +586,6 @@ def test_a_summary_without_scored_pairs_is_strict_json():
     text = summary_json({"auc5": float("nan"), "nmnet": {"auc10": float("inf"), "per_frame": [1.5, float("nan")]}, "frames": 6})
     assert json.loads(text, parse_constant=refuse) == {"auc5": None, "nmnet": {"auc10": None, "per_frame": [1.5, None]},
                                                        "frames": 6}
-
 
 
 def test_a_live_summary_says_why_frames_dropped_and_what_it_cannot_know_without_the_nodes_report(capsys):

@@ -161,7 +161,6 @@ def test_refine_pose_recovers_a_perturbed_pose_despite_outliers():
     assert np.allclose(out.E, skew(out.t) @ out.R)
 
 
-
 def test_a_rotation_alone_is_fitted_through_noise_and_mismatches_and_a_translation_shows_as_parallax():
     """fit_rotation (a camera that turned without moving), from rays with 0.3 px noise at f = 500 and 10 % mismatches:
     the mismatches do not tilt it (it equals the fit on the true matches alone, which the noise limits to a few
@@ -252,8 +251,6 @@ def test_fisheye_equidistant_normalisation_roundtrip():
     assert np.abs(plumb.normalize(px) - pts_n).max() > 0.01
 
 
-
-
 def test_strong_lens_is_undistorted_to_the_pixel_corners():
     """EuRoC's cam0 (radtan, k1 = -0.28): every pixel, the corners too, normalises to a ray that projects back onto
     it. OpenCV's default 5 fixed-point steps left up to 0.29 px there, twice the pose's 0.15 px inlier threshold."""
@@ -265,6 +262,7 @@ def test_strong_lens_is_undistorted_to_the_pixel_corners():
     x = cam.normalize(px)
     back = cv2.projectPoints(np.c_[x, np.ones(len(x))], np.zeros(3), np.zeros(3), cam.K, cam.dist)[0].reshape(-1, 2)
     assert np.abs(back - px).max() < 1e-6
+
 
 @pytest.mark.parametrize("model, dist", [("plumb_bob", [-0.28, 0.07, 0.0002, 0.00002, 0.0]),
                                          ("equidistant", [0.05, -0.01, 0.003, -0.0005])])
@@ -280,6 +278,7 @@ def test_skewed_camera_with_distortion_normalises(model, dist):
     xd = project(np.c_[pts_n, np.ones(4)][None], np.zeros(3), np.zeros(3), np.eye(3), np.array(dist))[0].reshape(-1, 2)
     px = (np.c_[xd, np.ones(4)] @ Ks.T)[:, :2]
     np.testing.assert_allclose(Camera(Ks, dist, model=model).normalize(px), pts_n, atol=1e-5)
+
 
 @pytest.mark.parametrize("model, dist, msg", [
     ("fov", [0.9], "distortion model 'fov' is not supported; use one of plumb_bob, rational_polynomial, equidistant"),

@@ -337,7 +337,6 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
         assert needle in out, f"no clear warning containing {needle!r}:\n{out}"
 
 
-
 def test_a_camera_before_a_plane_is_said_in_diagnostics_and_its_covariance(ros, tmp_path):
     """Views of a plane (a wall, flat ground): the node counts warn_plane_ambiguous in /diagnostics and its
     ~/relative_pose carries a direction sigma that reaches the plane's other pose (above 0.3; 0.02-0.05 with depth)."""
@@ -368,6 +367,7 @@ def test_the_diagnostics_level_is_warn_while_warnings_are_recent_and_ok_again_af
         DiagnosticStatus.WARN, "warnings in the last 10 s: bad_image")
     assert health({"bad_image": 89.0, "no_camera_info": 2.0}, 100.0, "ok") == (DiagnosticStatus.OK, "ok")
     assert health({"no_motion": 99.0}, 100.0, "no_motion") == (DiagnosticStatus.OK, "no_motion")
+
 
 def test_corrupt_jpeg_is_skipped(ros, tmp_path):
     seq = Sequence.load(data_dir("kitti-07"))
@@ -467,7 +467,6 @@ def test_a_node_nobody_publishes_to_names_the_image_topics_there_are(ros, tmp_pa
     assert ("use_sim_time is true but nothing has published /clock for 5 s: the node's clock stands at 0.000 s" in out) == sim, out
 
 
-
 def test_a_compressed_topic_remapped_as_the_raw_input_is_explained(ros, tmp_path):
     """-r image:=.../compressed without use_compressed:=true: DDS delivers nothing across message types; the node said
     "the camera may have stopped publishing". It now names both types and the settings, within seconds."""
@@ -499,6 +498,7 @@ def test_a_depth_topic_remapped_as_the_image_is_pointed_out_at_start_up(ros, tmp
         assert spin_until(peer.node, lambda: "looks like a depth topic" in node.output(), 10.0), node.output()
     assert "/camera/depth/image_rect_raw looks like a depth topic: nmnet_node detects features in camera frames, not in " \
         "depth images: remap its input to the camera's colour, mono or infrared stream" in node.output()
+
 
 def test_rectified_frames_take_p_and_a_rect_topic_with_distortion_is_pointed_out(ros, tmp_path):
     """KITTI's frames are rectified; given a camera_info whose K and D describe a raw, distorted camera and whose
@@ -793,7 +793,6 @@ def test_flood_keeps_latency_bounded(ros, tmp_path):
     assert late - early < 30  # flat memory: after warm-up nothing accumulates
 
 
-
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_a_stop_signal_while_frames_are_in_flight_is_a_quiet_clean_exit(ros, tmp_path, sig):
     """Stopped while both stages work (frames at 30 Hz, more than the node keeps up with): exit 0 and nothing said
@@ -817,6 +816,7 @@ def test_a_stop_signal_while_frames_are_in_flight_is_a_quiet_clean_exit(ros, tmp
     out = node.output()
     assert code == 0, out
     assert "unexpected error" not in out and "Failed to publish" not in out, out
+
 
 def test_node_module_caps_malloc_arenas_unless_the_user_set_it():
     """Importing the node limits glibc to one malloc arena (flat RSS); a user's MALLOC_ARENA_MAX wins."""

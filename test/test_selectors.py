@@ -146,7 +146,6 @@ def test_prepared_matches_are_used_only_against_the_features_they_were_made_with
     assert fe.prepare(img[0]).matches is None  # reset: the first stage starts a new chain too
 
 
-
 def turned_view(seq: Sequence, img: np.ndarray, deg: float, axis: list[float]) -> tuple[np.ndarray, np.ndarray]:
     """(R, the image as the camera sees it turned by ``deg`` about ``axis`` without moving): warped by K R K^-1."""
     import cv2
@@ -215,6 +214,7 @@ def test_a_camera_standing_still_gets_its_small_rotation_not_the_identity():
         still.append(rotation_error_deg(np.eye(3), R_gt))
     print(f"mean rotation error: fitted {np.mean(est):.4f} deg, identity {np.mean(still):.4f} deg")
     assert np.mean(est) < 0.5 * np.mean(still)
+
 
 def test_matching_runs_where_it_shortens_the_slower_stage():
     """match_stage auto: per-stage costs measured here (1 thread per stage, native KITTI frames):
