@@ -367,6 +367,21 @@ def test_an_output_that_would_overwrite_an_input_or_a_recording_is_refused_befor
     assert json.loads(summary.read_text())["frames"] == 3 and read_output(Path(out))["/nmnet_node/relative_pose"] == 3
 
 
+def test_an_output_overwrites_only_an_earlier_output_or_an_empty_file(tmp_path):
+    from nmnet_ros.mcap_out import McapOutput
+
+    empty, ours, text = tmp_path / "empty.mcap", tmp_path / "ours.mcap", tmp_path / "notes.mcap"
+    empty.write_bytes(b"")  # e.g. made by `touch` or a tool that reserves the name
+    text.write_text("a user's file named .mcap\n")
+    McapOutput(ours).close()
+    for path in (empty, ours):
+        McapOutput(path).close()
+        assert read_output(path) == {}, path  # a valid, empty output
+    with pytest.raises(FileExistsError, match="notes.mcap exists and was not written by nmnet"):
+        McapOutput(text)
+    assert text.read_text() == "a user's file named .mcap\n"
+
+
 def test_missing_bag_and_unknown_format(tmp_path):
     r = nmnet("replay", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "o.mcap"))
     assert r.returncode == 2 and "no such bag" in r.stderr

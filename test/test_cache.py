@@ -4,6 +4,7 @@ import os
 import shutil
 
 import numpy as np
+import pytest
 
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.datasets import Sequence
@@ -35,3 +36,15 @@ def test_a_changed_image_and_one_of_the_same_name_elsewhere_get_their_own_featur
     os.utime(seq.paths[0], ns=(1, 10**18))
     again = FeatureCache(detector, tmp_path / "cache")(seq, 0)
     assert not same(again, first[0]) and same(again, detector(seq.image(0)))
+
+
+def test_a_missing_image_is_named_by_the_cache_before_any_detection(tmp_path):
+    from nmnet_ros.datasets import DatasetError
+
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    shutil.copy(data_dir("strecha-fountain-p11") / "camera.yaml", folder / "camera.yaml")
+    (folder / "images.txt").write_text("0.0 gone.jpg\n")
+    with pytest.raises(DatasetError, match=r"gone.jpg: cannot read image: No such file"):
+        FeatureCache(make_detector("sift"), tmp_path / "cache")(Sequence.load(folder), 0)
+    assert not (tmp_path / "cache").exists()
