@@ -45,16 +45,20 @@ def silence_advice(subscribed_reliable: bool, publishers_reliable: list[bool]) -
     return "the camera may have stopped publishing"
 
 
+def _switch_to(topic: str, compressed: bool) -> str:
+    """The settings that take ``topic``, of the other message type than the node's (``compressed``: it subscribes
+    CompressedImage)."""
+    return (f"set -p use_compressed:=false -r image:={topic}" if compressed
+            else f"set -p use_compressed:=true -r image/compressed:={topic}")
+
+
 def mistyped_advice(topic: str, their_types: list[str], compressed: bool) -> str:
     """For an image topic whose publishers all send another message type than the node subscribes (which DDS never
     delivers): what they send and the settings that take it (``-r image:=.../compressed`` without use_compressed)."""
     ours = IMAGE_TYPES[compressed]
     theirs = ", ".join(sorted(set(their_types)))
-    if IMAGE_TYPES[not compressed] in their_types:
-        fix = (f"set -p use_compressed:=false -r image:={topic}" if compressed
-               else f"set -p use_compressed:=true -r image/compressed:={topic}")
-    else:
-        fix = "remap the input to a topic of camera frames (sensor_msgs/msg/Image or CompressedImage)"
+    fix = (_switch_to(topic, compressed) if IMAGE_TYPES[not compressed] in their_types
+           else "remap the input to a topic of camera frames (sensor_msgs/msg/Image or CompressedImage)")
     return f"{topic} is published as {theirs} but this node subscribes {ours}, so no frame can arrive: {fix}"
 
 
@@ -84,8 +88,6 @@ def where_are_the_images(topics: list[tuple[str, list[str]]], ours: set[str], co
     same = [name for name, t in frames if t == IMAGE_TYPES[compressed]]
     if same:
         hint = f"remap with -r {'image/compressed' if compressed else 'image'}:={same[0]}"
-    elif compressed:
-        hint = f"for raw frames set -p use_compressed:=false -r image:={frames[0][0]}"
     else:
-        hint = f"for compressed frames set -p use_compressed:=true -r image/compressed:={frames[0][0]}"
+        hint = f"for {'raw' if compressed else 'compressed'} frames {_switch_to(frames[0][0], compressed)}"
     return f"image topics seen: {listing}; {hint}"
