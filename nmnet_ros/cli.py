@@ -182,9 +182,10 @@ def main(argv: list[str] | None = None) -> int:
     sys.argv[1:] = argv
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not getattr(args, "_module", None):
-        parser.print_help()
-        return 0
+    if not getattr(args, "_module", None):  # a script calling bare `nmnet` must not read success
+        parser.print_help(sys.stderr)
+        print(f"nmnet: error: name a command: {', '.join(SUBCOMMANDS)} (nmnet COMMAND --help)", file=sys.stderr)
+        return 2
     try:
         return importlib.import_module(args._module).main(args)
     except KeyboardInterrupt:

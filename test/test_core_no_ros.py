@@ -32,6 +32,13 @@ def test_cli_lists_subcommands():
         assert sub in out
 
 
+def test_cli_without_a_command_fails_naming_the_commands():
+    """Bare `nmnet` is a usage error (exit 2, as argparse's), not success: a script would read it as done."""
+    run = subprocess.run([sys.executable, "-m", "nmnet_ros.cli"], capture_output=True, text=True)
+    assert run.returncode == 2 and run.stdout == ""
+    assert "error: name a command: " in run.stderr and "replay" in run.stderr.splitlines()[-1]
+
+
 @pytest.mark.parametrize("argv, option, why", [
     (["eval", "d", "--stride", "0"], "--stride", "'0': expected a whole number >= 1"),  # was a ZeroDivisionError
     (["eval", "d", "--max-pairs", "-3"], "--max-pairs", "'-3': expected a whole number >= 1"),  # was numpy's message
