@@ -319,8 +319,9 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> list[Path]:
-    """Per-frame errors and trajectory (top view) where ground truth scored any pair, and the match overlay."""
+def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path, prefix: str = "") -> list[Path]:
+    """Per-frame errors and trajectory (top view) where ground truth scored any pair, and the match overlay,
+    as ``out_dir/<prefix>errors.png``, ``trajectory.png`` and ``matches.png``."""
     import cv2
     import matplotlib
 
@@ -341,7 +342,7 @@ def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> l
         for a in ax:
             a.grid(alpha=0.3)
             a.legend(fontsize=8)
-        paths.append(_save(fig, out_dir / "errors.png"))
+        paths.append(_save(fig, out_dir / f"{prefix}errors.png"))
 
     chains = [(run, *chain_trajectory(run)) for run in runs]
     chains = [(run, est, gt) for run, est, gt in chains if len(gt) > 1]  # a path: two positions or more
@@ -356,9 +357,9 @@ def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path) -> l
         ax.axis("equal")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-        paths.append(_save(fig, out_dir / "trajectory.png"))
+        paths.append(_save(fig, out_dir / f"{prefix}trajectory.png"))
     if overlay is not None:
-        paths.append(out_dir / "matches.png")
+        paths.append(out_dir / f"{prefix}matches.png")
         cv2.imwrite(str(paths[-1]), overlay)
     return paths
 
@@ -400,7 +401,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the camera's pose (optical frame: z forward, x right, y down) in the frame the ground truth "
                    "tracks, when that is a body (a motion-capture marker set, base_link), not the camera")
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
-    p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots (default: next to --out)")
+    p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots, named errors.png, trajectory.png, "
+                   "matches.png (default: --out's folder, named after it: OUT_errors.png, ...)")
     p.add_argument("--image-topic", default=None)
     p.add_argument("--info-topic", default=None)
     p.add_argument("--gt-topic", default=None, help="the ground-truth topic (a pose, odometry or transform message; "
@@ -536,11 +538,13 @@ def ground_truth(reader: BagReader, args: argparse.Namespace, image_topic: str) 
     return truth.moved(args.gt_camera) if truth is not None and args.gt_camera is not None else truth
 
 
-def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> Path:
-    """Stop before any processing when an output would overwrite an input or cannot be written; the plots' folder.
+def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, str]:
+    """Stop before any processing when an output would overwrite an input or cannot be written; the plots' folder
+    and file-name prefix.
 
     The summary and the plots are written last, so a bad ``--json`` or ``--plots`` found only then would lose them
-    after the whole replay.
+    after the whole replay. Beside ``--out`` the plots carry its name, so replays of several bags into one folder
+    (``--out results/a.mcap``, ``--out results/b.mcap``) keep each one's plots.
     """
     outputs = {"--out": args.out, "--json": args.json}
     given = [p for p in inputs if p is not None and p.exists()]
@@ -554,13 +558,15 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> Path:
     output_file(args.json, "--json", "summary.json")
     if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
         raise ValueError(f"--plots {args.plots} is a file: give a folder for the plots")
-    return args.plots or args.out.parent  # --out's folder: its writability is checked as the output is opened
+    if args.plots is not None:
+        return args.plots, ""
+    return args.out.parent, f"{args.out.stem}_"  # --out's folder: its writability is checked as the output is opened
 
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay``: offline through the front end here, or ``--live`` through the node."""
     reader = BagReader(args.bag)  # a missing or unreadable bag stops here
-    plots_dir = check_outputs(args, [*reader.files, args.gt, args.camera, args.params_file, args.weights])
+    plots_dir, plots_prefix = check_outputs(args, [*reader.files, args.gt, args.camera, args.params_file, args.weights])
     params = node_params(args)  # a bad parameters file stops here, naming it
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic}
     if args.live:
@@ -617,7 +623,7 @@ def main(args: argparse.Namespace) -> int:
     if args.json:  # before the plots: the summary is what a script reads
         args.json.write_text(summary_json(summary))
     plots_dir.mkdir(parents=True, exist_ok=True)
-    for p in write_plots(runs, overlay, plots_dir):
+    for p in write_plots(runs, overlay, plots_dir, plots_prefix):
         print(f"plot: {p}")
     print(f"output: {args.out} ({out.count} messages)")
     return 130 if interrupted else 0

@@ -705,10 +705,27 @@ def test_a_bag_without_ground_truth_gets_the_match_picture_and_no_empty_plots(ra
     rewrite_bag(raw_bag, bag, lambda topic, msg: None if topic == "/ground_truth/pose" else msg)
     r = nmnet("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--no-progress")
     assert r.returncode == 0 and "plot:" in r.stdout and "vs ground truth" not in r.stdout, r.stderr
-    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["matches.png"] and "legend" not in r.stderr
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["o_matches.png"] and "legend" not in r.stderr
     one = tmp_path / "one_frame"  # ground truth, but a single frame: no pair, no path
     r = nmnet("replay", str(raw_bag), "--out", str(one / "o.mcap"), "--duration", "0", "--no-progress")
     assert r.returncode == 0 and "1/1 frames" in r.stdout and "plot:" not in r.stdout and not list(one.glob("*.png"))
+
+
+def test_replays_of_several_bags_into_one_folder_keep_each_ones_plots(raw_bag, tmp_path):
+    """Beside --out the plots are named after it: a second bag replayed into the folder (or a user's own errors.png
+    there) was overwritten by the next replay's errors.png, trajectory.png and matches.png."""
+    mine = tmp_path / "errors.png"
+    mine.write_bytes(b"a user's plot")
+    for name in ("a", "b"):
+        r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / f"{name}.mcap"), "--duration", "0.25", "--no-progress")
+        assert r.returncode == 0, r.stderr
+        assert f"plot: {tmp_path / f'{name}_errors.png'}" in r.stdout
+    plots = {p.name: p.stat().st_size for p in tmp_path.glob("*.png")}
+    assert set(plots) == {"errors.png"} | {f"{n}_{kind}.png" for n in "ab" for kind in ("errors", "trajectory", "matches")}
+    assert mine.read_bytes() == b"a user's plot" and min(plots[p] for p in plots if p != "errors.png") > 1000
+    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "c.mcap"), "--plots", str(tmp_path / "p"), "--duration",
+              "0.25", "--no-progress")  # a folder of its own keeps the plain names
+    assert r.returncode == 0 and f"plot: {tmp_path / 'p' / 'matches.png'}" in r.stdout, r.stderr
 
 
 def test_an_offline_replays_outputs_name_the_images_frame_as_the_nodes_do(raw_bag, tmp_path):
