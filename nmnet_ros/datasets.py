@@ -1,4 +1,4 @@
-"""Sequence folders (../shared/data format): camera.yaml, images.txt, groundtruth.txt, pairs.txt.
+"""Sequence folders (../shared/data format): camera.yaml, images.txt (or TUM RGB-D's rgb.txt), groundtruth.txt, pairs.txt.
 
 Also pair sampling by frame gap and ground-truth labels of correspondences.
 """
@@ -262,6 +262,18 @@ def _poses_at(gt: Trajectory, stamps: np.ndarray, root: Path) -> np.ndarray:
     return poses
 
 
+def _other_layout(root: Path) -> str | None:
+    """What to do with a folder of another benchmark's layout that lacks camera.yaml, or None."""
+    if any(root.glob("H_1_to_*")):
+        return ("H_1_to_N files: a homography benchmark (Oxford affine regions, HPatches), which has no camera poses; "
+                "nmnet eval and train score relative poses: they need camera.yaml and groundtruth.txt")
+    if (root / "rgb.txt").is_file():
+        return ("rgb.txt: a TUM RGB-D sequence, read as it is (rgb.txt for images.txt, its groundtruth.txt) once "
+                "camera.yaml holds its camera's calibration (ROS camera_info YAML: the K and D TUM lists for "
+                "freiburg1/2/3)")
+    return None
+
+
 @dataclass
 class Sequence:
     """One sequence folder with camera, frames, optional ground-truth poses and pairs."""
@@ -279,10 +291,15 @@ class Sequence:
         root = Path(root)
         if not root.is_dir():
             raise DatasetError(f"{root}: not a directory")
+        if not (root / "camera.yaml").is_file() and (hint := _other_layout(root)):
+            raise DatasetError(f"{root / 'camera.yaml'}: missing; {hint}")
         camera = read_camera_yaml(root / "camera.yaml")
-        rows = _read_table(root / "images.txt", "timestamp path", lambda r: (float(r[0]), root / r[1]))
+        listing = root / "images.txt"
+        if not listing.is_file() and (root / "rgb.txt").is_file():
+            listing = root / "rgb.txt"  # a TUM RGB-D sequence: the same 'timestamp path' lines
+        rows = _read_table(listing, "timestamp path", lambda r: (float(r[0]), root / r[1]))
         if not rows:
-            raise DatasetError(f"{root / 'images.txt'}: no frames listed")
+            raise DatasetError(f"{listing}: no frames listed")
         stamps = np.array([stamp for stamp, _ in rows])
         paths = [path for _, path in rows]
         poses = None

@@ -157,6 +157,39 @@ def test_empty_folder_names_missing_camera_yaml(tmp_path):
         Sequence.load(tmp_path)
 
 
+def test_a_tum_rgbd_folder_reads_as_it_is_and_other_benchmarks_are_named(tmp_path):
+    """TUM RGB-D's layout (rgb.txt, rgb/<stamp>.png, groundtruth.txt at its own rate, '#' headers) is the sequence
+    format with rgb.txt for images.txt: it was refused for a missing images.txt. A homography benchmark's folder is
+    named as such rather than as a sequence folder missing camera.yaml."""
+    src = data_dir("kitti-07")
+    rows = [r for r in (src / "images.txt").read_text().splitlines() if not r.startswith("#")][:6]
+    (tmp_path / "rgb").mkdir()
+    listing = ["# color images", "# file: 'rgbd_dataset_freiburg1_xyz.bag'", "# timestamp filename"]
+    for row in rows:
+        stamp, name = row.split()
+        shutil.copy(src / name, tmp_path / "rgb" / f"{1305031102 + float(stamp):.6f}.png")
+        listing.append(f"{1305031102 + float(stamp):.6f} rgb/{1305031102 + float(stamp):.6f}.png")
+    (tmp_path / "rgb.txt").write_text("\n".join(listing) + "\n")
+    gt = [r.split() for r in (src / "groundtruth.txt").read_text().splitlines() if not r.startswith("#")][:6]
+    (tmp_path / "groundtruth.txt").write_text("# ground truth trajectory\n# timestamp tx ty tz qx qy qz qw\n" + "".join(
+        f"{1305031102 + float(r[0]):.4f} {' '.join(r[1:])}\n" for r in gt))
+    with pytest.raises(DatasetError, match=r"camera.yaml: missing; rgb.txt: a TUM RGB-D sequence, read as it is"):
+        Sequence.load(tmp_path)
+    shutil.copy(src / "camera.yaml", tmp_path / "camera.yaml")
+    seq, kitti = Sequence.load(tmp_path), Sequence.load(f"{src}")
+    assert len(seq) == 6 and seq.paths[2].parent.name == "rgb" and np.array_equal(seq.image(2), kitti.image(2))
+    assert np.allclose(seq.relative_pose(1, 4)[1], kitti.relative_pose(1, 4)[1], atol=1e-3)  # stamps of its own, interpolated
+
+    (tmp_path / "images.txt").write_text("\n".join(listing[3:6]).replace("rgb/", "rgb/x"))  # images.txt comes first
+    with pytest.raises(DatasetError, match=r"x1305031102.000000.png: cannot read image"):
+        Sequence.load(tmp_path).image(0)
+    boat = tmp_path / "boat"
+    boat.mkdir()
+    (boat / "H_1_to_2p").write_text("1 0 0\n0 1 0\n0 0 1\n")
+    with pytest.raises(DatasetError, match="H_1_to_N files: a homography benchmark .* no camera poses"):
+        Sequence.load(boat)
+
+
 def test_a_missing_truncated_or_empty_image_is_named_not_read_in_part(tmp_path):
     src = data_dir("strecha-fountain-p11")
     for name in ("camera.yaml", "images.txt", "groundtruth.txt"):
