@@ -96,6 +96,26 @@ def parse_seq_spec(spec: str) -> tuple[str, range | None]:
     return path, range(int(m[1]), int(m[2]) + 1)
 
 
+def shared_frames(specs: list[str], others: list[str]) -> list[str]:
+    """Where two lists of 'PATH[:a-b]' specs take the same frames of one folder ('NAME frames a-b', 'NAME, every
+    frame'): training frames given as validation make its F-measure reward memorising them."""
+    found = []
+    for spec in specs:
+        path, frames = parse_seq_spec(spec)
+        for other in others:
+            other_path, other_frames = parse_seq_spec(other)
+            if Path(path).resolve() != Path(other_path).resolve():
+                continue
+            if frames is None and other_frames is None:
+                found.append(f"{Path(path).name}, every frame")
+                continue
+            lo = max(r.start for r in (frames, other_frames) if r is not None)
+            hi = min(r.stop for r in (frames, other_frames) if r is not None) - 1
+            if lo <= hi:
+                found.append(f"{Path(path).name} frames {lo}-{hi}")
+    return found
+
+
 def to_correspondences(pair: PairData, with_labels: bool = True) -> Correspondences:
     """The selectors' view of a pair (imported lazily: selectors pull in the network)."""
     from .selectors import Correspondences

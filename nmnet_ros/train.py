@@ -34,7 +34,7 @@ from .geometry import apply_homography, eight_point_rows, essential_from_pose, h
 from .metrics import prf
 from .model import NMNet, WeightsError, load_model, network_input
 from .neighbors import mine_neighbors
-from .pairs import PairData, make_pair, parse_seq_spec, select_pairs
+from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, shared_frames
 
 DEFAULT_CONFIG: dict = {
     "variant": "nmnet",  # or "nmnet-sp"
@@ -397,6 +397,10 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     """Train; writes ``best.pt`` (by validation F), ``last.pt`` and ``history.json`` to out_dir."""
     c = {**DEFAULT_CONFIG, **(config or {})}
     kind = _checked_neighbors(c, train_specs)
+    if shared := shared_frames(train_specs, val_specs):  # said before any work (features: minutes)
+        log(f"warning: --val takes --train's frames ({'; '.join(shared)}): validation F, which picks best.pt and the "
+            "score threshold, then rewards memorising them; validate on other frames or scenes "
+            "(--train SEQ:0-119 --val SEQ:120-159)")
     torch.manual_seed(c["seed"])
     rng = np.random.default_rng(c["seed"])
     out_dir = Path(out_dir)

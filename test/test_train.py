@@ -2,6 +2,7 @@
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from nmnet_ros.model import DEFAULT_CONFIG as MODEL_CONFIG
 from nmnet_ros.model import load_model, weights_dir
 from nmnet_ros.neighbor_study import add_arguments as neighbors_args
 from nmnet_ros.neighbors import mine_neighbors
+from nmnet_ros.pairs import shared_frames
 from nmnet_ros.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
 from nmnet_ros.train import (
     MIN_THINNED_RATIO,
@@ -67,6 +69,7 @@ def test_train_few_steps_then_resume(tmp_path):
     said: list[str] = []
     s = train(spec_train, spec_val, tmp_path, cfg, resume=True, cache_dir=tmp_path / "cache", log=said.append)
     assert s["train_pairs"] == 1 and s["val_pairs"] == 1 and "does not exist yet, so this is a new run" in said[0]
+    assert not any("warning" in line for line in said), said  # frames 0-1 and 2-3: validation apart from training
     assert any(line.startswith(f"  {spec_train[0]}: 1 pairs (of 1)") and "ready in" in line for line in said), said
     model = load_model(tmp_path / "best.pt")
     assert not model.training
@@ -129,6 +132,21 @@ def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
     with pytest.raises(ValueError, match=match):
         train([seq], [seq], tmp_path / "out", {"init": str(path)}, cache_dir=tmp_path / "cache")
     assert not (tmp_path / "out").exists()  # refused before any work
+
+
+def test_validation_on_training_frames_is_warned_before_any_features():
+    """--val overlapping --train (a folder given to both, ranges that meet) makes validation F, which picks best.pt,
+    measure memory; it was not said. Said before the features are computed (minutes)."""
+    kitti, herz = str(data_dir("kitti-07")), str(data_dir("strecha-herz-jesus-p25"))
+    assert shared_frames([f"{kitti}:0-119", herz], [f"{kitti}:120-159", f"{herz}/"]) == ["strecha-herz-jesus-p25, every frame"]
+    assert shared_frames([f"{kitti}:0-119"], [f"{kitti}:100-159", kitti]) == ["kitti-07 frames 100-119", "kitti-07 frames 0-119"]
+    assert shared_frames([f"{kitti}:0-119"], [f"{kitti}:120-159", herz]) == []
+    said: list[str] = []
+    with pytest.raises(ValueError, match="weights file not found"):  # stops before features: the warning came first
+        train([herz], [f"{herz}:20-24"], Path("unused"), {"init": "missing.pt"}, log=said.append)
+    assert said == ["warning: --val takes --train's frames (strecha-herz-jesus-p25 frames 20-24): validation F, which "
+                    "picks best.pt and the score threshold, then rewards memorising them; validate on other frames or "
+                    "scenes (--train SEQ:0-119 --val SEQ:120-159)"]
 
 
 @pytest.mark.parametrize(("key", "value", "match"), [("label_threshold", 0.0, "--label-threshold must be in"),
