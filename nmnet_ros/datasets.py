@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import yaml
 
+from .caminfo import fit_camera
 from .geometry import Camera, CameraError, essential_from_pose, relative_pose, sym_epipolar_sq
 
 Row = TypeVar("Row")  # what a table row converts to
@@ -274,6 +275,19 @@ def _other_layout(root: Path) -> str | None:
     return None
 
 
+def _decode(path: Path) -> np.ndarray:
+    """An image file as stored; DatasetError naming it when missing, truncated or not an image."""
+    try:  # decoded from its bytes: cv2.imread returns a truncated JPEG's top part, grey below, with a mere warning
+        data = np.fromfile(path, np.uint8)
+    except OSError as e:
+        raise DatasetError(f"{path}: cannot read image: {e.strerror or e}") from e
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    if img is None:
+        raise DatasetError(f"{path}: cannot decode image ({data.size} bytes): truncated, corrupt or not an image "
+                           "(PNG, JPEG, PGM, ...); copy it again from its source")
+    return img
+
+
 @dataclass
 class Sequence:
     """One sequence folder with camera, frames, optional ground-truth poses and pairs."""
@@ -284,6 +298,7 @@ class Sequence:
     paths: list[Path]
     poses: np.ndarray | None  # (N,4,4) T_WC; NaN for a frame groundtruth.txt has no pose for
     pairs_file: list[tuple[int, int]] | None
+    size_note: str | None = None  # camera.yaml's K scaled to the images (a resized copy of a dataset)
 
     @classmethod
     def load(cls, root: str | Path) -> Sequence:
@@ -311,7 +326,27 @@ class Sequence:
             bad = [p for p in pairs if not (0 <= p[0] < len(paths) and 0 <= p[1] < len(paths))]
             if bad:
                 raise DatasetError(f"{root / 'pairs.txt'}: pair indices out of range: {bad[:3]}")
-        return cls(root, camera, stamps, paths, poses, pairs)
+        seq = cls(root, camera, stamps, paths, poses, pairs)
+        seq._fit_camera()
+        return seq
+
+    def _fit_camera(self) -> None:
+        """Fit camera.yaml to the first image's size: K scaled, with a note, when the images are its size scaled
+        evenly (a downscaled copy of a dataset); refused for any other size. Poses and labels from a camera of
+        another size were silently wrong (AUC 0 on Strecha at half size)."""
+        try:
+            h, w = _decode(self.paths[0]).shape[:2]
+        except DatasetError:
+            return  # named where the frame is used
+        cam = self.camera
+        fitted, _ = fit_camera(cam, (w, h))
+        said = f"{self.root / 'camera.yaml'} describes {cam.width}x{cam.height} frames but {self.paths[0].name} is {w}x{h}"
+        if fitted is None:
+            raise DatasetError(f"{said}, which is not the same image scaled (cropped images, another camera's "
+                               "calibration?): give the folder the camera.yaml of these images")
+        if fitted is not cam:
+            self.camera = fitted
+            self.size_note = f"{said}: K scaled by {w / cam.width:.4g} to fit (a camera.yaml of these images silences this)"
 
     @property
     def name(self) -> str:
@@ -321,16 +356,13 @@ class Sequence:
         return len(self.paths)
 
     def image(self, i: int) -> np.ndarray:
-        """Frame i as stored (uint8 gray or BGR)."""
-        path = self.paths[i]
-        try:  # decoded from its bytes: cv2.imread returns a truncated JPEG's top part, grey below, with a mere warning
-            data = np.fromfile(path, np.uint8)
-        except OSError as e:
-            raise DatasetError(f"{path}: cannot read image: {e.strerror or e}") from e
-        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-        if img is None:
-            raise DatasetError(f"{path}: cannot decode image ({data.size} bytes): truncated, corrupt or not an image "
-                               "(PNG, JPEG, PGM, ...); copy it again from its source")
+        """Frame i as stored (uint8 gray or BGR), the size of the folder's camera."""
+        img = _decode(self.paths[i])
+        (h, w), cam = img.shape[:2], self.camera
+        if cam.width > 0 and (w, h) != (cam.width, cam.height):
+            raise DatasetError(f"{self.paths[i]}: {w}x{h}, but the folder's frames are {cam.width}x{cam.height} "
+                               f"({'as its first image' if self.size_note else 'as camera.yaml says'}): every frame "
+                               "of a sequence folder must be one size")
         return img
 
     def image_version(self, i: int) -> str:
@@ -346,6 +378,10 @@ class Sequence:
     def has_pose(self, i: int) -> bool:
         """Whether groundtruth.txt gives frame i a pose."""
         return self.poses is not None and not np.isnan(self.poses[i, 3, 3])
+
+    def notes(self) -> list[str]:
+        """What to tell the user before using the folder: K scaled to the images, frames without a pose."""
+        return [note for note in (self.size_note, self.uncovered_note()) if note]
 
     def uncovered_note(self) -> str | None:
         """What to tell the user when groundtruth.txt leaves frames without a pose (None when it covers all)."""

@@ -38,7 +38,7 @@ def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache
     for spec in specs:
         path, frames = parse_seq_spec(spec)
         seq = Sequence.load(path)
-        if note := seq.uncovered_note():
+        for note in seq.notes():
             print(f"warning: {note}", file=sys.stderr)
         chosen = select_pairs(seq, gaps, frames)
         if seq.pairs_file is None:

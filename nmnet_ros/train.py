@@ -74,7 +74,7 @@ def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min
     for spec in specs:
         path, frames = parse_seq_spec(spec)
         seq = Sequence.load(path)
-        if note := seq.uncovered_note():
+        for note in seq.notes():
             log(f"  warning: {note}")
         chosen = select_pairs(seq, gaps, frames)
         t0 = time.perf_counter()

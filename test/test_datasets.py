@@ -2,6 +2,7 @@
 
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 
@@ -188,6 +189,40 @@ def test_a_tum_rgbd_folder_reads_as_it_is_and_other_benchmarks_are_named(tmp_pat
     (boat / "H_1_to_2p").write_text("1 0 0\n0 1 0\n0 0 1\n")
     with pytest.raises(DatasetError, match="H_1_to_N files: a homography benchmark .* no camera poses"):
         Sequence.load(boat)
+
+
+def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_refused(tmp_path):
+    """A downscaled copy of a dataset (images half camera.yaml's size) was evaluated with the full-size K: poses
+    and labels silently wrong (ratio+magsac AUC@5 0.0 on Strecha fountain). K is fitted to the images, with a
+    note; a crop or a folder of mixed sizes is named."""
+    from nmnet_ros.cache import FeatureCache
+    from nmnet_ros.detectors import make_detector
+    from nmnet_ros.pairs import make_pair
+
+    src = data_dir("strecha-fountain-p11")
+    for name in ("camera.yaml", "images.txt", "groundtruth.txt"):
+        shutil.copy(src / name, tmp_path / name)
+    full = Sequence.load(src)
+    (tmp_path / "images").mkdir()
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / "images" / full.paths[i].name), cv2.resize(full.image(i), (384, 256)))
+    half = Sequence.load(tmp_path)
+    assert half.size_note == (f"{tmp_path / 'camera.yaml'} describes 768x512 frames but 0000.jpg is 384x256: K scaled "
+                              "by 0.5 to fit (a camera.yaml of these images silences this)")
+    assert half.notes()[0] == half.size_note and (half.camera.width, half.camera.height) == (384, 256)
+    assert np.isclose(half.camera.K[0, 0], full.camera.K[0, 0] / 2) and full.notes() == [] and full.size_note is None
+    cache = FeatureCache(make_detector("sift"), tmp_path / "cache")
+    inliers = [make_pair(seq, 0, 1, cache).labels.mean() for seq in (full, half)]
+    assert inliers[1] > 0.7 * inliers[0] > 0.1, inliers  # with the full-size K: 0.03 of the half-size matches
+
+    cv2.imwrite(str(tmp_path / "images" / full.paths[2].name), full.image(2))  # one frame of another size
+    with pytest.raises(DatasetError, match=r"0002.jpg: 768x512, but the folder's frames are 384x256 \(as its first "
+                                           r"image\): every frame of a sequence folder must be one size"):
+        Sequence.load(tmp_path).image(2)
+    cv2.imwrite(str(tmp_path / "images" / full.paths[0].name), full.image(0)[:, :700])  # a crop: no K fits
+    with pytest.raises(DatasetError, match=r"describes 768x512 frames but 0000.jpg is 700x512, which is not the "
+                                           r"same image scaled"):
+        Sequence.load(tmp_path)
 
 
 def test_a_missing_truncated_or_empty_image_is_named_not_read_in_part(tmp_path):
