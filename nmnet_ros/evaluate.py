@@ -201,7 +201,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (default: shipped)")
     p.add_argument("--weights-sp", type=Path, default=None, help="NM-Net-sp weights (default: shipped)")
     p.add_argument("--json", type=Path, default=None, help="write {method: metrics} as JSON")
-    p.add_argument("--plot", type=Path, default=Path("eval_curves.png"), help="recall-vs-error plot (PNG)")
+    p.add_argument("--plot", type=Path, default=None, help="recall-vs-error plot (PNG; default: --json's path with .png, "
+                   "else eval_curves.png)")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),
                    help="local feature frames (default: the node's)")
@@ -238,6 +239,8 @@ def main(args: argparse.Namespace) -> int:
     if args.refine_iterations < 0:
         raise ValueError(f"--refine-iterations must be >= 0 (0 = off), got {args.refine_iterations}")
     output_file(args.json, "--json", "eval.json")
+    if args.plot is None:  # beside its numbers: evaluations into one folder keep each one's plot
+        args.plot = args.json.with_suffix(".png") if args.json is not None else Path("eval_curves.png")
     output_file(args.plot, "--plot", "eval_curves.png")
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
     cache = FeatureCache(make_detector(args.detector), args.cache)

@@ -398,6 +398,11 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     keys = {"precision", "recall", "f1", "auc5", "auc10", "auc20", "median_rot_deg", "median_trans_deg", "pairs", "sec_per_pair"}
     assert set(res) == {"ratio", "nmnet", "oracle"} and all(set(v) == keys for v in res.values())
     assert res["oracle"]["precision"] == 100.0 and res["nmnet"]["pairs"] == 7  # 4 gap-1 + 3 gap-2 pairs in 120-124
+    (tmp_path / "cwd").mkdir()  # without --plot the plot goes beside --json (it went to ./eval_curves.png, each run's
+    run = subprocess.run([*cmd[:8], "ratio", "--json", str(tmp_path / "b.json"), *cmd[-2:]],  # over the one before)
+                         capture_output=True, text=True, cwd=tmp_path / "cwd")
+    assert run.returncode == 0 and f"plot: {tmp_path / 'b.png'}" in run.stdout, run.stderr
+    assert (tmp_path / "b.png").stat().st_size > 0 and not any((tmp_path / "cwd").iterdir())
     assert "ratio+magsac's" not in run.stdout  # the default reference was not run: no comparison
     ref = subprocess.run(cmd + ["--reference", "oracle"], capture_output=True, text=True)
     assert ref.returncode == 0 and "AUC@5 minus oracle's, same 7 pairs" in ref.stdout
