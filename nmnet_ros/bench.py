@@ -17,13 +17,12 @@ import json
 import time
 from collections.abc import Callable, Iterator
 from functools import partial
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
-from .cli import output_file, whole
+from .cli import file_path, output_file, whole
 from .neighbors import compatibility_neighbors, compatibility_neighbors_loop, spatial_neighbors
 
 if TYPE_CHECKING:  # the network and OpenCV load when a benchmark runs, not on import
@@ -257,7 +256,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet bench``."""
     p.add_argument("--sizes", default="1000,2000", help="correspondence counts")
     p.add_argument("--repeat", type=whole(1), default=20)
-    p.add_argument("--json", type=Path, default=None, help="write the numbers as JSON")
+    p.add_argument("--json", type=file_path, default=None, help="write the numbers as JSON")
     p.add_argument("--pipeline", action="store_true", help="also time every pipeline stage on the sample bag's frames")
     p.add_argument("--frames", type=whole(2), default=16, help="frames of the sample bag used with --pipeline")
     p.add_argument("--threads", type=whole(1), default=None,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import os
 import sys
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -44,6 +45,14 @@ def bounded(kind: type, least: float, expected: str, strict: bool = False) -> Ca
 def whole(least: int) -> Callable[[str], int]:
     """An argparse type: a whole number >= ``least`` (a count)."""
     return bounded(int, least, f"a whole number >= {least}")
+
+
+def file_path(text: str) -> Path:
+    """An output file option's value: one ending in '/' names a folder (as ``ros2 bag record -o DIR/``), which
+    ``Path`` would quietly turn into a file of the folder's name."""
+    if text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(f"'{text}' ends in '/', a folder: give a file name in it")
+    return Path(text)
 
 
 def output_file(path: Path | None, flag: str, example: str) -> None:

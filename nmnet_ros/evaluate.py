@@ -20,7 +20,7 @@ import numpy as np
 
 from .bf16 import PRECISIONS
 from .cache import FeatureCache
-from .cli import gaps, output_file, progress, whole
+from .cli import file_path, gaps, output_file, progress, whole
 from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
@@ -200,8 +200,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-pairs", type=whole(1), default=None, help="at most this many pairs per sequence (evenly spread)")
     p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (default: shipped)")
     p.add_argument("--weights-sp", type=Path, default=None, help="NM-Net-sp weights (default: shipped)")
-    p.add_argument("--json", type=Path, default=None, help="write {method: metrics} as JSON")
-    p.add_argument("--plot", type=Path, default=None, help="recall-vs-error plot (PNG; default: --json's path with .png, "
+    p.add_argument("--json", type=file_path, default=None, help="write {method: metrics} as JSON")
+    p.add_argument("--plot", type=file_path, default=None, help="recall-vs-error plot (PNG; default: --json's path with .png, "
                    "else eval_curves.png)")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .cache import FeatureCache
-from .cli import gaps, output_file, whole
+from .cli import file_path, gaps, output_file, whole
 from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .neighbors import compatibility_neighbors, spatial_neighbors
@@ -59,7 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,2")
     p.add_argument("--stride", type=whole(1), default=10, help="use every n-th frame as a pair's first frame")
     p.add_argument("--k", type=whole(1), default=8)
-    p.add_argument("--json", type=Path, default=None, help="write the rows and table as JSON")
+    p.add_argument("--json", type=file_path, default=None, help="write the rows and table as JSON")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),
                    help="local feature frames (default: the node's)")

@@ -22,7 +22,7 @@ import numpy as np
 from .bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
-from .cli import bounded, output_file
+from .cli import bounded, file_path, output_file
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
@@ -394,13 +394,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet replay``."""
     p.add_argument("bag", type=Path, help=".bag, .db3 or .mcap file, a ROS 2 bag directory, or a folder of a ROS 1 "
                    "recording's parts (rosbag record --split)")
-    p.add_argument("--out", type=Path, required=True, help="output .mcap with matches and relative poses")
+    p.add_argument("--out", type=file_path, required=True, help="output .mcap with matches and relative poses")
     p.add_argument("--gt", type=Path, default=None, help="ground truth as a TUM file (else the bag's ground-truth topic, "
                    "if any)")
     p.add_argument("--gt-camera", type=gt_camera, default=None, metavar="'X Y Z QX QY QZ QW'",
                    help="the camera's pose (optical frame: z forward, x right, y down) in the frame the ground truth "
                    "tracks, when that is a body (a motion-capture marker set, base_link), not the camera")
-    p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
+    p.add_argument("--json", type=file_path, default=None, help="write the summary as JSON")
     p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots, named errors.png, trajectory.png, "
                    "matches.png (default: --out's folder, named after it: OUT_errors.png, ...)")
     p.add_argument("--image-topic", default=None)
@@ -555,6 +555,7 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
                              "choose another path")
     if args.json is not None and args.json.resolve() == args.out.resolve():
         raise ValueError(f"--json {args.json} is also --out: give the summary its own file")
+    output_file(args.out, "--out", "nmnet.mcap")
     output_file(args.json, "--json", "summary.json")
     if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
         raise ValueError(f"--plots {args.plots} is a file: give a folder for the plots")

@@ -48,6 +48,13 @@ def test_cli_without_a_command_fails_naming_the_commands():
     (["train", "--train", "d", "--val", "d", "--out", "o", "--seed", "x"], "--seed", "'x': expected a whole number >= 0"),
     (["neighbors", "d", "--k", "0"], "--k", "'0': expected a whole number >= 1"),
     (["bench", "--repeat", "0"], "--repeat", "'0': expected a whole number >= 1"),
+    # an output file ending in '/' meant a folder: it became a file of the folder's name
+    (["replay", "b.mcap", "--out", "results/"], "--out", "'results/' ends in '/', a folder: give a file name in it"),
+    (["replay", "b.mcap", "--out", "o.mcap", "--json", "res/"], "--json", "'res/' ends in '/', a folder"),
+    (["eval", "d", "--json", "res/"], "--json", "'res/' ends in '/', a folder"),
+    (["eval", "d", "--plot", "res/"], "--plot", "'res/' ends in '/', a folder"),
+    (["bench", "--json", "res/"], "--json", "'res/' ends in '/', a folder"),
+    (["neighbors", "d", "--json", "res/"], "--json", "'res/' ends in '/', a folder"),
 ])
 def test_a_count_or_gap_out_of_range_is_refused_naming_the_option(argv, option, why, capsys):
     """The tools' counts and frame gaps are checked as they are parsed (exit 2, argparse's line naming the option)
@@ -221,3 +228,12 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_work(argv, 
         assert said in capsys.readouterr().err
     output_file(tmp_path / "new" / "deeper" / "r.json", "--json", example)
     assert (tmp_path / "new" / "deeper").is_dir()
+
+
+def test_a_replay_into_an_existing_folder_suggests_a_file_in_it(tmp_path, capsys):
+    """`--out results` where results/ exists (rosbag2's -o takes a folder) said only 'Is a directory'."""
+    from nmnet_ros.cli import main
+
+    assert main(["replay", str(ROOT / "nmnet_ros" / "sample" / "kitti07_120-159"), "--out", str(tmp_path)]) == 2
+    assert f"--out {tmp_path} is a folder: give a file name, e.g. {tmp_path / 'nmnet.mcap'}" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
