@@ -556,6 +556,9 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
     if args.json is not None and args.json.resolve() == args.out.resolve():
         raise ValueError(f"--json {args.json} is also --out: give the summary its own file")
     output_file(args.out, "--out", "nmnet.mcap")
+    if args.out.suffix != ".mcap" and not args.out.exists():  # an existing file: McapOutput says whose it is
+        raise ValueError(f"--out {args.out}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know "
+                         f"by its .mcap suffix: give {args.out.with_suffix('.mcap')}")
     output_file(args.json, "--json", "summary.json")
     if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
         raise ValueError(f"--plots {args.plots} is a file: give a folder for the plots")

@@ -230,10 +230,16 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_work(argv, 
     assert (tmp_path / "new" / "deeper").is_dir()
 
 
-def test_a_replay_into_an_existing_folder_suggests_a_file_in_it(tmp_path, capsys):
-    """`--out results` where results/ exists (rosbag2's -o takes a folder) said only 'Is a directory'."""
+def test_a_replay_into_an_existing_folder_or_a_file_without_mcap_suffix_is_refused_naming_one(tmp_path, capsys):
+    """`--out results` where results/ exists (rosbag2's -o takes a folder) said only 'Is a directory'; `--out out`
+    wrote an MCAP file that neither rosbags nor nmnet replay could then open, lacking the suffix."""
     from nmnet_ros.cli import main
 
     assert main(["replay", str(ROOT / "nmnet_ros" / "sample" / "kitti07_120-159"), "--out", str(tmp_path)]) == 2
     assert f"--out {tmp_path} is a folder: give a file name, e.g. {tmp_path / 'nmnet.mcap'}" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+    for name in ("out", "out.db3"):  # an MCAP file no reader would open by its name (rosbags: "Unrecognized storage")
+        assert main(["replay", str(ROOT / "nmnet_ros" / "sample" / "kitti07_120-159"), "--out", str(tmp_path / name)]) == 2
+        assert f"--out {tmp_path / name}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know by " \
+               f"its .mcap suffix: give {tmp_path / 'out.mcap'}" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
