@@ -226,8 +226,9 @@ def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet eval``."""
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in METHODS]
-    if unknown:
-        raise ValueError(f"unknown method(s) {unknown}; choose from {', '.join(METHODS)}")
+    if unknown or not methods:  # none: an empty table and an empty plot, exit 0
+        raise ValueError(f"{f'unknown method(s) {unknown}' if unknown else '--methods names none'}; choose from "
+                         f"{', '.join(METHODS)}")
     if args.score_threshold is not None and not 0.0 <= args.score_threshold < 1.0:
         raise ValueError(f"--score-threshold must be in [0, 1), got {args.score_threshold}")
     if not args.threshold_px > 0:

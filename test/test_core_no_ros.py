@@ -230,6 +230,17 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_work(argv, 
     assert (tmp_path / "new" / "deeper").is_dir()
 
 
+@pytest.mark.parametrize("methods, said", [("ratio,magsak", "unknown method(s) ['magsak']; choose from nmnet, "),
+                                           ("", "--methods names none; choose from nmnet, "),
+                                           (" , ", "--methods names none; choose from nmnet, ")])
+def test_eval_methods_unknown_or_none_are_refused_before_any_work(methods, said, capsys):
+    """An empty --methods evaluated nothing: an empty table and plot, exit 0."""
+    from nmnet_ros.cli import main
+
+    assert main(["eval", "no_such_folder", "--methods", methods]) == 2
+    assert f"nmnet eval: error: {said}" in capsys.readouterr().err
+
+
 def test_a_replay_into_an_existing_folder_or_a_file_without_mcap_suffix_is_refused_naming_one(tmp_path, capsys):
     """`--out results` where results/ exists (rosbag2's -o takes a folder) said only 'Is a directory'; `--out out`
     wrote an MCAP file that neither rosbags nor nmnet replay could then open, lacking the suffix."""
