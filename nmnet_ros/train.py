@@ -423,6 +423,12 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         except RuntimeError as e:
             raise WeightsError(f"--resume: {out_dir / 'last.pt'} does not fit this run's network; resume with the options "
                                f"it was started with (--ratio-input or not): {str(e).splitlines()[0]}") from e
+    if out_dir.exists() and not out_dir.is_dir():  # found at the first checkpoint, it came after minutes of features
+        raise ValueError(f"--out {out_dir} is a file: give a folder for the checkpoints")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ValueError(f"--out {out_dir}: cannot make the folder: {e.strerror or e}") from e
     cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
     groups = [load_pairs([spec], cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"]) for spec in train_specs]
@@ -438,7 +444,6 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     device = torch.device(c["device"])
     model = model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=c["lr"])
-    out_dir.mkdir(parents=True, exist_ok=True)
     history: list[dict] = []
     start_epoch, best_f = 0, -1.0
     if resuming:

@@ -2,6 +2,7 @@
 
 import argparse
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -132,6 +133,18 @@ def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
     with pytest.raises(ValueError, match=match):
         train([seq], [seq], tmp_path / "out", {"init": str(path)}, cache_dir=tmp_path / "cache")
     assert not (tmp_path / "out").exists()  # refused before any work
+
+
+def test_an_out_that_is_a_file_is_refused_before_any_features(tmp_path):
+    """A file as --out failed with '[Errno 17] File exists' at the first checkpoint, after the features (minutes)."""
+    seq = str(data_dir("strecha-fountain-p11"))
+    afile = tmp_path / "afile"
+    afile.write_text("a user's file")
+    for out, said in ((afile, f"--out {afile} is a file: give a folder for the checkpoints"),
+                      (afile / "run", f"--out {afile / 'run'}: cannot make the folder: ")):
+        with pytest.raises(ValueError, match=re.escape(said)):
+            train([f"{seq}:0-1"], [f"{seq}:2-3"], out, {"gaps": (1,)}, cache_dir=tmp_path / "cache")
+    assert not (tmp_path / "cache").exists() and afile.read_text() == "a user's file"
 
 
 def test_validation_on_training_frames_is_warned_before_any_features():
