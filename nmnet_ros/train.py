@@ -392,6 +392,19 @@ def _step(model: NMNet, opt: torch.optim.Optimizer, pool: ThreadPoolExecutor, ba
     return loss.item()
 
 
+RESUMABLE_CHANGES = {"epochs", "workers", "device", "init"}  # a resumed run may change these freely
+
+
+def options_changed(checkpoint: dict, config: dict, train_specs: list[str], val_specs: list[str]) -> list[str]:
+    """'name: then -> now' for each training option a resumed run changes (last.pt before this check: none known)."""
+    if "train_config" not in checkpoint:
+        return []
+    then = {**checkpoint["train_config"], "train": checkpoint["train"], "val": checkpoint["val"]}
+    now = {**{k: list(v) if isinstance(v, tuple) else v for k, v in config.items()}, "train": train_specs,
+           "val": val_specs}
+    return [f"{k}: {then.get(k)} -> {now[k]}" for k in now if k not in RESUMABLE_CHANGES and then.get(k) != now[k]]
+
+
 def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: dict | None = None,
           resume: bool = False, cache_dir: Path | None = None, log: Callable[[str], None] = print) -> dict:
     """Train; writes ``best.pt`` (by validation F), ``last.pt`` and ``history.json`` to out_dir."""
@@ -452,6 +465,10 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         torch.set_rng_state(ck["torch_rng"])
         start_epoch, best_f, history = ck["epoch"] + 1, ck["best_f"], ck["history"]
         log(f"resumed after epoch {ck['epoch']}, best val F {best_f:.2f}")
+        if changed := options_changed(ck, c, train_specs, val_specs):
+            log(f"warning: resumed with other options than the run was started with ({'; '.join(changed)}): best.pt "
+                "is kept while validation F beats the run's best so far, which other --val, --label-threshold or "
+                "--detector values make a different measure; start a new --out to compare them")
 
     pool = ThreadPoolExecutor(c["workers"])
     t_start = time.time()
@@ -479,7 +496,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         if val["f1"] > best_f:
             best_f = val["f1"]
             torch.save({"state_dict": state, **meta, "epoch": epoch, "val": val}, out_dir / "best.pt")
-        torch.save({"state_dict": state, "optimizer": opt.state_dict(), "epoch": epoch,
+        torch.save({"state_dict": state, **meta, "optimizer": opt.state_dict(), "epoch": epoch,
                     "best_f": best_f, "history": history, "rng": rng.bit_generator.state,
                     "torch_rng": torch.get_rng_state()}, out_dir / "last.pt")
         (out_dir / "history.json").write_text(json.dumps(history, indent=1))

@@ -78,9 +78,20 @@ def test_train_few_steps_then_resume(tmp_path):
     with pytest.raises(ValueError, match=f"{tmp_path} holds a training run already .best.pt, last.pt.: add --resume"):
         train(spec_train, spec_val, tmp_path, cfg, cache_dir=tmp_path / "cache")  # run again, --resume forgotten
     assert (tmp_path / "best.pt").read_bytes() == best
-    s2 = train(spec_train, spec_val, tmp_path, {**cfg, "epochs": 2}, resume=True, cache_dir=tmp_path / "cache")
+    said.clear()
+    s2 = train(spec_train, spec_val, tmp_path, {**cfg, "epochs": 2}, resume=True, cache_dir=tmp_path / "cache",
+               log=said.append)
     hist = json.loads((tmp_path / "history.json").read_text())
     assert [h["epoch"] for h in hist] == [0, 1] and s2["best_val_f1_at_0.5"] >= s["best_val_f1_at_0.5"]
+    assert not any("warning" in line for line in said), said  # more --epochs: what --resume is for
+    said.clear()  # other labels or validation frames: best.pt's F is then another measure, said
+    train(spec_train, [f"{spec_val[0][:-4]}:2-4"], tmp_path, {**cfg, "epochs": 3, "label_threshold": 5e-5}, resume=True,
+          cache_dir=tmp_path / "cache", log=said.append)
+    assert [line for line in said if line.startswith("warning: resumed with other options")] == [
+        f"warning: resumed with other options than the run was started with (label_threshold: 0.0001 -> 5e-05; val: "
+        f"{spec_val} -> ['{spec_val[0][:-4]}:2-4']): best.pt is kept while validation F beats the run's best so far, "
+        "which other --val, --label-threshold or --detector values make a different measure; start a new --out to "
+        "compare them"], said
     assert 0 < s2["score_threshold"] < 1 and s2["val_f1"] >= s2["best_val_f1_at_0.5"] - 1e-9
 
 
