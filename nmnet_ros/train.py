@@ -298,6 +298,13 @@ def validate(model: NMNet, pairs: list[PairData], threshold: float = 0.5) -> dic
     return out
 
 
+def _save(path: Path, checkpoint: dict) -> None:
+    """torch.save through a temporary file: an interrupt while writing leaves the previous checkpoint whole."""
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(checkpoint, tmp)
+    tmp.replace(path)
+
+
 def calibrate(out_dir: Path, val_pairs: list[PairData], log: Callable[[str], None] = print) -> dict:
     """Store in best.pt the score threshold that maximises validation F; returns its metrics."""
     ck = torch.load(out_dir / "best.pt", map_location="cpu", weights_only=False)
@@ -308,7 +315,7 @@ def calibrate(out_dir: Path, val_pairs: list[PairData], log: Callable[[str], Non
     val = validate(model, val_pairs, best_t)
     val.pop("f1_by_threshold")
     ck.update(score_threshold=float(best_t), val_calibrated=val)
-    torch.save(ck, out_dir / "best.pt")
+    _save(out_dir / "best.pt", ck)
     log(f"calibrated score threshold {best_t:.2f}: val P {val['precision']:.1f} R {val['recall']:.1f} F {val['f1']:.1f}")
     return {"score_threshold": float(best_t), **{f"val_{k}": v for k, v in val.items()}}
 
@@ -438,10 +445,8 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
                                f"it was started with (--ratio-input or not): {str(e).splitlines()[0]}") from e
     if out_dir.exists() and not out_dir.is_dir():  # found at the first checkpoint, it came after minutes of features
         raise ValueError(f"--out {out_dir} is a file: give a folder for the checkpoints")
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise ValueError(f"--out {out_dir}: cannot make the folder: {e.strerror or e}") from e
+    if blocking := next((p for p in out_dir.parents if p.exists() and not p.is_dir()), None):
+        raise ValueError(f"--out {out_dir}: {blocking} is a file, not a folder")
     cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
     groups = [load_pairs([spec], cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"]) for spec in train_specs]
@@ -457,6 +462,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     device = torch.device(c["device"])
     model = model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=c["lr"])
+    out_dir.mkdir(parents=True, exist_ok=True)
     history: list[dict] = []
     start_epoch, best_f = 0, -1.0
     if resuming:
@@ -472,34 +478,41 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
 
     pool = ThreadPoolExecutor(c["workers"])
     t_start = time.time()
-    for epoch in range(start_epoch, c["epochs"]):
-        model.train()
-        losses = []
-        t0 = time.time()
-        for _ in range(c["steps_per_epoch"]):
-            batch = []  # drawn in order from the seeded generator, whatever the number of workers
-            drawn = (rng.integers(len(train_pairs), size=c["batch"]) if weights is None
-                     else rng.choice(len(train_pairs), size=c["batch"], p=weights))
-            for pi in drawn:
-                batch.append((train_pairs[pi], *draw_sample(rng, train_pairs[pi], c)))
-            losses.append(_step(model, opt, pool, batch, c, device))
-        val = validate(model, val_pairs)
-        val.pop("f1_by_threshold")
-        rec = {"epoch": epoch, "loss": float(np.mean(losses)), **{f"val_{k}": v for k, v in val.items()},
-               "epoch_sec": time.time() - t0}
-        history.append(rec)
-        log(f"epoch {epoch + 1}/{c['epochs']}  loss {rec['loss']:.4f}  val P {val['precision']:.1f} "
-            f"R {val['recall']:.1f} F {val['f1']:.1f}  ({rec['epoch_sec']:.0f}s)")
-        meta = {"config": model.config, "train_config": {k: list(v) if isinstance(v, tuple) else v for k, v in c.items()},
-                "train": train_specs, "val": val_specs, "commit": _git_commit()}
-        state = {k: v.cpu() for k, v in model.state_dict().items()}  # loadable without a GPU
-        if val["f1"] > best_f:
-            best_f = val["f1"]
-            torch.save({"state_dict": state, **meta, "epoch": epoch, "val": val}, out_dir / "best.pt")
-        torch.save({"state_dict": state, **meta, "optimizer": opt.state_dict(), "epoch": epoch,
-                    "best_f": best_f, "history": history, "rng": rng.bit_generator.state,
-                    "torch_rng": torch.get_rng_state()}, out_dir / "last.pt")
-        (out_dir / "history.json").write_text(json.dumps(history, indent=1))
+    try:
+        for epoch in range(start_epoch, c["epochs"]):
+            model.train()
+            losses = []
+            t0 = time.time()
+            for _ in range(c["steps_per_epoch"]):
+                batch = []  # drawn in order from the seeded generator, whatever the number of workers
+                drawn = (rng.integers(len(train_pairs), size=c["batch"]) if weights is None
+                         else rng.choice(len(train_pairs), size=c["batch"], p=weights))
+                for pi in drawn:
+                    batch.append((train_pairs[pi], *draw_sample(rng, train_pairs[pi], c)))
+                losses.append(_step(model, opt, pool, batch, c, device))
+            val = validate(model, val_pairs)
+            val.pop("f1_by_threshold")
+            rec = {"epoch": epoch, "loss": float(np.mean(losses)), **{f"val_{k}": v for k, v in val.items()},
+                   "epoch_sec": time.time() - t0}
+            history.append(rec)
+            log(f"epoch {epoch + 1}/{c['epochs']}  loss {rec['loss']:.4f}  val P {val['precision']:.1f} "
+                f"R {val['recall']:.1f} F {val['f1']:.1f}  ({rec['epoch_sec']:.0f}s)")
+            meta = {"config": model.config, "train_config": {k: list(v) if isinstance(v, tuple) else v for k, v in c.items()},
+                    "train": train_specs, "val": val_specs, "commit": _git_commit()}
+            state = {k: v.cpu() for k, v in model.state_dict().items()}  # loadable without a GPU
+            if val["f1"] > best_f:
+                best_f = val["f1"]
+                _save(out_dir / "best.pt", {"state_dict": state, **meta, "epoch": epoch, "val": val})
+            _save(out_dir / "last.pt", {"state_dict": state, **meta, "optimizer": opt.state_dict(), "epoch": epoch,
+                                        "best_f": best_f, "history": history, "rng": rng.bit_generator.state,
+                                        "torch_rng": torch.get_rng_state()})
+            (out_dir / "history.json").write_text(json.dumps(history, indent=1))
+    except KeyboardInterrupt:  # Ctrl-C ends a long run: its best.pt still gets the score threshold the tools read
+        pool.shutdown(wait=False, cancel_futures=True)
+        if (out_dir / "best.pt").is_file():
+            log("interrupted: calibrating best.pt's score threshold (seconds; Ctrl-C again to skip it)")
+            calibrate(out_dir, val_pairs, log)
+        raise
     pool.shutdown()
     summary = {"best_val_f1_at_0.5": best_f, "train_pairs": len(train_pairs), "val_pairs": len(val_pairs),
                "train_minutes": (time.time() - t_start) / 60, "epochs": c["epochs"], **calibrate(out_dir, val_pairs, log)}

@@ -146,13 +146,33 @@ def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
     assert not (tmp_path / "out").exists()  # refused before any work
 
 
+def test_a_run_stopped_with_ctrl_c_leaves_a_calibrated_best_pt(tmp_path):
+    """Ctrl-C is how a long run is ended; its best.pt kept the uncalibrated cut 0.5, which the node and the tools
+    then used without a word. Calibrated on the way out now (seconds), and the interrupt goes on to the CLI."""
+    seq = str(data_dir("strecha-fountain-p11"))
+    cfg = {"epochs": 3, "steps_per_epoch": 1, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1}
+    said: list[str] = []
+
+    def log(line: str) -> None:
+        said.append(line)
+        if line.startswith("epoch 2/3"):
+            raise KeyboardInterrupt  # as Ctrl-C lands in the second epoch
+    with pytest.raises(KeyboardInterrupt):
+        train([f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path, cfg, cache_dir=tmp_path / "cache", log=log)
+    ck = torch.load(tmp_path / "best.pt", map_location="cpu", weights_only=False)
+    assert ck["epoch"] == 0 and 0 < ck["score_threshold"] < 1 and load_model(tmp_path / "best.pt").score_threshold == \
+        ck["score_threshold"]
+    assert said[-2].startswith("interrupted: calibrating best.pt") and said[-1].startswith("calibrated score threshold")
+    assert not list(tmp_path.glob("*.tmp"))
+
+
 def test_an_out_that_is_a_file_is_refused_before_any_features(tmp_path):
     """A file as --out failed with '[Errno 17] File exists' at the first checkpoint, after the features (minutes)."""
     seq = str(data_dir("strecha-fountain-p11"))
     afile = tmp_path / "afile"
     afile.write_text("a user's file")
     for out, said in ((afile, f"--out {afile} is a file: give a folder for the checkpoints"),
-                      (afile / "run", f"--out {afile / 'run'}: cannot make the folder: ")):
+                      (afile / "run", f"--out {afile / 'run'}: {afile} is a file, not a folder")):
         with pytest.raises(ValueError, match=re.escape(said)):
             train([f"{seq}:0-1"], [f"{seq}:2-3"], out, {"gaps": (1,)}, cache_dir=tmp_path / "cache")
     assert not (tmp_path / "cache").exists() and afile.read_text() == "a user's file"
