@@ -555,7 +555,8 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
                              "choose another path")
     if args.json is not None and args.json.resolve() == args.out.resolve():
         raise ValueError(f"--json {args.json} is also --out: give the summary its own file")
-    output_file(args.out, "--out", "nmnet.mcap")
+    if args.out.is_dir():  # the rest of --out's checks come as the output is opened
+        raise ValueError(f"--out {args.out} is a folder: give a file name, e.g. {args.out / 'nmnet.mcap'}")
     if args.out.suffix != ".mcap" and not args.out.exists():  # an existing file: McapOutput says whose it is
         raise ValueError(f"--out {args.out}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know "
                          f"by its .mcap suffix: give {args.out.with_suffix('.mcap')}")
