@@ -26,7 +26,7 @@ from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
 from .model_fast import precision_note
-from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, to_correspondences
+from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, shared_frames, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, ROBUST, build
 
@@ -245,6 +245,10 @@ def main(args: argparse.Namespace) -> int:
     output_file(args.plot, "--plot", "eval_curves.png")
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
     cache = FeatureCache(make_detector(args.detector), args.cache)
+    for i, spec in enumerate(args.seqs):  # a folder given twice, or ranges that meet: its pairs would weigh double
+        if shared := shared_frames([spec], args.seqs[i + 1:], at_least=2):  # one frame shared: no pair in both
+            print(f"warning: {spec} and a later folder argument share frames ({'; '.join(shared)}): the pairs within "
+                  "them are evaluated twice and count twice in the means", file=sys.stderr)
     labels = [sequence_label(spec) for spec in args.seqs]
     if len(set(labels)) < len(labels):  # two folders of the same name (or one given twice): name them in full
         labels = list(args.seqs)

@@ -96,9 +96,10 @@ def parse_seq_spec(spec: str) -> tuple[str, range | None]:
     return path, range(int(m[1]), int(m[2]) + 1)
 
 
-def shared_frames(specs: list[str], others: list[str]) -> list[str]:
-    """Where two lists of 'PATH[:a-b]' specs take the same frames of one folder ('NAME frames a-b', 'NAME, every
-    frame'): training frames given as validation make its F-measure reward memorising them."""
+def shared_frames(specs: list[str], others: list[str], at_least: int = 1) -> list[str]:
+    """Where two lists of 'PATH[:a-b]' specs take the same ``at_least`` frames or more of one folder ('NAME frames
+    a-b', 'NAME, every frame'): training frames given as validation make its F-measure reward memorising them, and a
+    pair in two evaluated ranges counts twice."""
     found = []
     for spec in specs:
         path, frames = parse_seq_spec(spec)
@@ -111,7 +112,7 @@ def shared_frames(specs: list[str], others: list[str]) -> list[str]:
                 continue
             lo = max(r.start for r in (frames, other_frames) if r is not None)
             hi = min(r.stop for r in (frames, other_frames) if r is not None) - 1
-            if lo <= hi:
+            if hi - lo + 1 >= at_least:
                 found.append(f"{Path(path).name} frames {lo}-{hi}")
     return found
 

@@ -382,6 +382,22 @@ def test_seeds_below_one_are_refused(pairs):
         evaluate(pairs[:1], ["ratio+magsac"], seeds=0)
 
 
+def test_eval_warns_of_folder_arguments_that_share_frames(tmp_path, cache, capsys):
+    """One folder given twice, or ranges that meet: the pairs in both were evaluated twice, silently."""
+    import json
+
+    from nmnet_ros.cli import main
+
+    seq = data_dir("kitti-07")
+    argv = ["eval", f"{seq}:120-122", f"{seq}:121-123", "--gaps", "1", "--methods", "ratio", "--json",
+            str(tmp_path / "e.json"), "--cache", str(cache.root)]
+    assert main(argv) == 0
+    assert (f"warning: {seq}:120-122 and a later folder argument share frames (kitti-07 frames 121-122): the pairs "
+            "within them are evaluated twice and count twice in the means") in capsys.readouterr().err
+    assert json.loads((tmp_path / "e.json").read_text())["ratio"]["pairs"] == 4  # (121, 122) twice
+    assert main([*argv[:2], f"{seq}:122-123", *argv[3:]]) == 0 and "warning" not in capsys.readouterr().err  # 1 frame
+
+
 def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     import json
     import subprocess
