@@ -68,6 +68,7 @@ class NMNet(nn.Module):
         super().__init__()
         self.config = {**DEFAULT_CONFIG, **(config or {})}
         self.score_threshold = 0.5  # probability cut; load_model sets the calibrated one
+        self.calibrated = False  # whether score_threshold came from nmnet train's calibration
         w = list(self.config["widths"])
         self.embed = nn.Sequential(nn.Conv2d(1, w[0], (1, input_width(self.config))), _norm_act(w[0]))
         self.blocks = nn.Sequential(*[ResBlock(a, b) for a, b in zip([w[0]] + w[:-1], w, strict=True)])
@@ -115,4 +116,5 @@ def load_model(path: str | Path | None = None, variant: str = "nmnet") -> NMNet:
     except RuntimeError as e:
         raise WeightsError(f"{path}: weights do not fit NM-Net: {str(e).splitlines()[0]}") from e
     model.score_threshold = float(ckpt.get("score_threshold", 0.5))  # calibrated on validation by nmnet train
+    model.calibrated = "score_threshold" in ckpt
     return model.eval()

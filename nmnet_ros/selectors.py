@@ -11,6 +11,7 @@ ground-truth inliers + MAGSAC++ (the ceiling).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -228,7 +229,12 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         return cfg if seed is None else {**cfg, "seed": seed}
 
     if nmnet:
-        model = FastNMNet(load_model(weights.get(variant), variant), dtype)
+        net = load_model(weights.get(variant), variant)
+        if cfg["score_threshold"] is None and not net.calibrated:
+            warnings.warn(f"{weights.get(variant)}: no calibrated score threshold (a training run stopped before its "
+                          "end, or its last.pt), so NM-Net keeps the matches above 0.5: finish the run (nmnet train "
+                          "--resume) or set score_threshold", stacklevel=2)
+        model = FastNMNet(net, dtype)
         model.config["k"] = cfg.get("k", model.config["k"])
         if model.config["neighbors"] == "compatibility":
             warm_up()  # the mining kernel's compile / cache load happens here, not on the first frame pair

@@ -164,3 +164,25 @@ def test_ratio_input_is_a_fifth_input_the_fast_model_runs_too():
         other = model(network_input((k0 - 300) / 500, (k1 - 300) / 500, 1.0 - ratio, model.config)[None], nb[None])[0]
     torch.testing.assert_close(FastNMNet(model64)(x.double(), nb), ref64, atol=1e-9, rtol=0)
     assert (other.double() - ref64).abs().max() > 1e-3  # the ratio reaches the logits
+
+
+def test_weights_without_a_calibrated_threshold_are_said_where_the_cut_is_used(tmp_path):
+    """A training run stopped early (or its last.pt) has no calibrated cut: the front end kept matches above 0.5
+    without a word. Said when the selector is built; not with the shipped weights or an explicit score_threshold."""
+    import warnings
+
+    from nmnet_ros.model import weights_dir
+    from nmnet_ros.selectors import build
+
+    ck = torch.load(weights_dir() / "nmnet.pt", map_location="cpu", weights_only=True)
+    assert "score_threshold" in ck and load_model().calibrated
+    del ck["score_threshold"]
+    bare = tmp_path / "last.pt"
+    torch.save(ck, bare)
+    assert not load_model(bare).calibrated and load_model(bare).score_threshold == 0.5
+    with pytest.warns(UserWarning, match=f"{bare}: no calibrated score threshold .* keeps the matches above 0.5"):
+        build("nmnet+magsac", weights={"nmnet": str(bare)})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        build("nmnet+magsac")
+        build("nmnet", {"score_threshold": 0.7}, weights={"nmnet": str(bare)})
