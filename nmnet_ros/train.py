@@ -77,6 +77,11 @@ def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min
         for note in seq.notes():
             log(f"  warning: {note}")
         chosen = select_pairs(seq, gaps, frames)
+        if not chosen and (n := len(seq.pairs(gaps, frames))):
+            by = "pairs.txt" if seq.pairs_file is not None else f"gaps {','.join(map(str, gaps))}"
+            log(f"  warning: {spec}: none of its {n} frame pairs ({by}) has a ground-truth "
+                "pose on both frames, motion between them (epipolar labels need a baseline) and views within 40 "
+                "degrees")
         t0 = time.perf_counter()
         made = (make_pair(seq, i, j, cache, label_threshold=label_threshold)
                 for i, j in progress(chosen, f"features {seq.name}", "pair"))  # minutes on a fresh cache

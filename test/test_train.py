@@ -443,6 +443,16 @@ def test_balance_is_seeded_and_changes_the_batches(tmp_path):
     assert a == b and a != loss("plain", 0.0)
 
 
+def test_a_folder_whose_pairs_all_lack_motion_says_why_it_gives_none(tmp_path):
+    """EuRoC's excerpt (the MAV still on the ground) gave '0 pairs (of 0)' and then 'no training pairs', no reason."""
+    said: list[str] = []
+    euroc = str(data_dir("euroc-v101-cam0"))
+    assert load_pairs([euroc], FeatureCache(make_detector("sift"), tmp_path), (1, 2), 5, said.append) == []
+    assert said[0] == (f"  warning: {euroc}: none of its 187 frame pairs (gaps 1,2) has a ground-truth pose on both "
+                       "frames, motion between them (epipolar labels need a baseline) and views within 40 degrees")
+    assert not any(tmp_path.iterdir())  # no features computed for it
+
+
 @pytest.mark.parametrize("balance", [0.0, 1.0])
 def test_no_training_pairs_is_a_clear_error(tmp_path, balance):
     seq = str(data_dir("strecha-fountain-p11"))
