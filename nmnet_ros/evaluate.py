@@ -25,6 +25,7 @@ from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
+from .model import NEIGHBORS, load_model
 from .model_fast import precision_note
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, shared_frames, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
@@ -244,6 +245,11 @@ def main(args: argparse.Namespace) -> int:
         args.plot = args.json.with_suffix(".png") if args.json is not None else Path("eval_curves.png")
     output_file(args.plot, "--plot", "eval_curves.png")
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
+    for variant, path in weights.items():  # the other variant's network would be scored under this one's name
+        if (kind := load_model(path).config["neighbors"]) != NEIGHBORS[variant]:
+            flag, other = ("--weights", "--weights-sp") if variant == "nmnet" else ("--weights-sp", "--weights")
+            raise ValueError(f"{flag} {path}: trained with {kind} neighbours, the other variant's network; "
+                             f"give it as {other}")
     cache = FeatureCache(make_detector(args.detector), args.cache)
     for i, spec in enumerate(args.seqs):  # a folder given twice, or ranges that meet: its pairs would weigh double
         if shared := shared_frames([spec], args.seqs[i + 1:], at_least=2):  # one frame shared: no pair in both

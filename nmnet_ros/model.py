@@ -23,6 +23,7 @@ DEFAULT_CONFIG: dict = {
     "neighbors": "compatibility",  # or "spatial" for NM-Net-sp
     "ratio_input": False,  # True: a fifth input per match, its descriptor distance ratio (not in the paper)
 }
+NEIGHBORS = {"nmnet": "compatibility", "nmnet-sp": "spatial"}  # each variant's neighbours (paper: NM-Net, NM-Net-sp)
 
 
 def input_width(config: dict) -> int:

@@ -32,7 +32,7 @@ from .datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
 from .metrics import prf
-from .model import NMNet, WeightsError, load_model, network_input
+from .model import NEIGHBORS, NMNet, WeightsError, load_model, network_input
 from .neighbors import mine_neighbors
 from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, shared_frames
 
@@ -63,8 +63,6 @@ DEFAULT_CONFIG: dict = {
 MAX_ROLL_DEG = 10.0  # per-image camera roll drawn from +-this when augmenting
 MIN_THINNED_RATIO = 0.05  # lowest inlier ratio a thinned sample is given
 MAX_TURN_DEG = 60.0  # --turn-deg above this would turn most views out of the image
-
-NEIGHBORS = {"nmnet": "compatibility", "nmnet-sp": "spatial"}
 
 
 def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min_inliers: int,

@@ -382,6 +382,20 @@ def test_seeds_below_one_are_refused(pairs):
         evaluate(pairs[:1], ["ratio+magsac"], seeds=0)
 
 
+def test_eval_refuses_weights_of_the_other_variant(capsys):
+    """NM-Net-sp's checkpoint as --weights (or the reverse) was scored under the other variant's name, silently."""
+    from nmnet_ros.cli import main
+    from nmnet_ros.model import weights_dir
+
+    sp, nm = weights_dir() / "nmnet-sp.pt", weights_dir() / "nmnet.pt"
+    for argv, said in ((["--weights", str(sp)], f"--weights {sp}: trained with spatial neighbours, the other variant's "
+                                                 "network; give it as --weights-sp"),
+                       (["--weights-sp", str(nm)], f"--weights-sp {nm}: trained with compatibility neighbours, the other "
+                                                   "variant's network; give it as --weights")):
+        assert main(["eval", "no_such_folder", "--methods", "nmnet", *argv]) == 2
+        assert f"nmnet eval: error: {said}" in capsys.readouterr().err
+
+
 def test_eval_warns_of_folder_arguments_that_share_frames(tmp_path, cache, capsys):
     """One folder given twice, or ranges that meet: the pairs in both were evaluated twice, silently."""
     import json
