@@ -66,6 +66,7 @@ from .params import (
     not_parameters,
     params_file_misses,
     pose_sigmas,
+    rcl_arguments_error,
 )
 from .pipeline import FrameResult, Frontend, Prepared, stamp_order, stamp_warning
 from .planes import NOTE as PLANE_NOTE
@@ -555,7 +556,11 @@ def params_files_of(argv: list[str]) -> tuple[str, ...]:
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``nmnet_node`` / ``python -m nmnet_ros.node``."""
     argv = sys.argv if args is None else args
-    rclpy.init(args=argv)
+    try:
+        rclpy.init(args=argv)
+    except RuntimeError as e:  # RCLError: rcl could not read the arguments after --ros-args
+        print(f"nmnet_node: error: {rcl_arguments_error(str(e))}", file=sys.stderr)
+        return 2
     node = None
     try:
         node = NMNetNode(params_files_of(argv))

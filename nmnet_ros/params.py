@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import difflib
 import fnmatch
+import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -239,3 +240,10 @@ def read_params_file(path: Path, warn: Callable[[str], None] = print) -> dict:
                 raise ParamsFileError(f"{path}: {why}")
             values[name] = value
     return values
+
+
+def rcl_arguments_error(message: str) -> str:
+    """rcl's refusal of the ROS arguments (a --params-file it cannot open or parse, a malformed -p or -r), without
+    its C source locations, and the forms it takes: rclpy raised it from ``rclpy.init`` as a traceback."""
+    said = re.sub(r",? at /\S+:\d+", "", message).replace("failed to initialize rcl: ", "").replace(". Error: error not set", "")
+    return f"{said} (the forms: -p name:=value, -r from:=to, --params-file FILE; see nmnet_node --help)"

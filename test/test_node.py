@@ -741,6 +741,26 @@ def test_invalid_parameter_is_a_clear_error(ros, tmp_path, name, value):
     assert "nmnet_node: error:" in out and name in out and value in out and "Traceback" not in out
 
 
+@pytest.mark.parametrize("args, said", [
+    (["--params-file", "/no/such/nmnet.yaml"], "Couldn't parse params file: '--params-file /no/such/nmnet.yaml'. "
+                                              "Error: Error opening YAML file (the forms: -p name:=value"),
+    (["--params-file", "{bad}"], "Couldn't parse params file: '--params-file {bad}'. Error: Error parsing"),
+    (["-p", "max_keypoints"], "Couldn't parse parameter override rule: '-p max_keypoints'"),
+    (["-r", "image:="], "Couldn't parse remap rule: '-r image:=' (the forms: "),
+], ids=["missing-file", "bad-yaml", "bare-p", "bare-r"])
+def test_ros_arguments_rcl_cannot_read_are_one_line_not_a_traceback(ros, tmp_path, args, said):
+    """A --params-file that is missing or not YAML, a -p or -r without its value: rclpy.init raised RCLError, a
+    traceback ending in rcl's C source locations."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("nmnet_node:\n  ros__parameters:\n    max_keypoints: [1, 2\n")
+    node = NodeProcess(["--ros-args", *[a.replace("{bad}", str(bad)) for a in args]], ros, tmp_path / "node.log")
+    assert node.proc.wait(60) == 2
+    node.stop()
+    out = node.output()
+    assert f"nmnet_node: error: {said.replace('{bad}', str(bad))}" in out and "Traceback" not in out
+    assert "/project/src" not in out.split("nmnet_node: error:")[1], out
+
+
 def rss_mb(pid: int) -> float:
     for line in open(f"/proc/{pid}/status"):
         if line.startswith("VmRSS:"):
