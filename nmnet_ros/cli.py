@@ -70,6 +70,17 @@ def output_file(path: Path | None, flag: str, example: str) -> None:
         raise ValueError(f"{flag} {path}: {why}") from e
 
 
+def output_folder(path: Path | None, flag: str, what: str) -> None:
+    """Before the work: refuse a file given as an output folder, or a path through a file (found when the first
+    output is written, after the work, with only '[Errno 17] File exists'). The folder is made by its writer."""
+    if path is None:
+        return
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{flag} {path} is a file: give a folder for {what}")
+    if blocking := next((p for p in path.parents if p.exists() and not p.is_dir()), None):
+        raise ValueError(f"{flag} {path}: {blocking} is a file, not a folder")
+
+
 def progress(items: list, desc: str, unit: str) -> Iterable:
     """A progress bar on a terminal (none in a log) for the tools' long loops: features and methods take minutes."""
     from tqdm import tqdm

@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 
 from . import replay
-from .cli import ros_missing
+from .cli import output_folder, ros_missing
 
 SAMPLE_BAG = Path(__file__).parent / "sample" / "kitti07_120-159"
 
@@ -41,6 +41,7 @@ def _without_ros() -> str | None:
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet demo``."""
     out = args.out_dir
+    output_folder(out, "--out-dir", "the demo's outputs")
     out.mkdir(parents=True, exist_ok=True)
     parser = argparse.ArgumentParser()
     replay.add_arguments(parser)  # the demo is exactly these two replay commands

@@ -22,7 +22,7 @@ import numpy as np
 from .bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
-from .cli import bounded, file_path, output_file
+from .cli import bounded, file_path, output_file, output_folder
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
@@ -561,8 +561,7 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
         raise ValueError(f"--out {args.out}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know "
                          f"by its .mcap suffix: give {args.out.with_suffix('.mcap')}")
     output_file(args.json, "--json", "summary.json")
-    if args.plots is not None and args.plots.exists() and not args.plots.is_dir():
-        raise ValueError(f"--plots {args.plots} is a file: give a folder for the plots")
+    output_folder(args.plots, "--plots", "the plots")
     if args.plots is not None:
         return args.plots, ""
     return args.out.parent, f"{args.out.stem}_"  # --out's folder: its writability is checked as the output is opened

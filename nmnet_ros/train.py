@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from .cache import FeatureCache
-from .cli import gaps, progress, whole
+from .cli import gaps, output_folder, progress, whole
 from .datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
@@ -446,10 +446,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         except RuntimeError as e:
             raise WeightsError(f"--resume: {out_dir / 'last.pt'} does not fit this run's network; resume with the options "
                                f"it was started with (--ratio-input or not): {str(e).splitlines()[0]}") from e
-    if out_dir.exists() and not out_dir.is_dir():  # found at the first checkpoint, it came after minutes of features
-        raise ValueError(f"--out {out_dir} is a file: give a folder for the checkpoints")
-    if blocking := next((p for p in out_dir.parents if p.exists() and not p.is_dir()), None):
-        raise ValueError(f"--out {out_dir}: {blocking} is a file, not a folder")
+    output_folder(out_dir, "--out", "the checkpoints")  # before minutes of features
     cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
     groups = [load_pairs([spec], cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"]) for spec in train_specs]

@@ -241,6 +241,19 @@ def test_eval_methods_unknown_or_none_are_refused_before_any_work(methods, said,
     assert f"nmnet eval: error: {said}" in capsys.readouterr().err
 
 
+def test_a_demo_out_dir_that_is_a_file_is_named(tmp_path, capsys):
+    """`nmnet demo --out-dir` a file said '[Errno 17] File exists', through a file '[Errno 20] Not a directory'."""
+    from nmnet_ros.cli import main
+
+    afile = tmp_path / "afile"
+    afile.write_text("a user's file")
+    for out, said in ((afile, f"--out-dir {afile} is a file: give a folder for the demo's outputs"),
+                      (afile / "sub", f"--out-dir {afile / 'sub'}: {afile} is a file, not a folder")):
+        assert main(["demo", "--out-dir", str(out)]) == 2
+        assert f"nmnet demo: error: {said}" in capsys.readouterr().err
+    assert afile.read_text() == "a user's file"
+
+
 def test_a_replay_into_an_existing_folder_or_a_file_without_mcap_suffix_is_refused_naming_one(tmp_path, capsys):
     """`--out results` where results/ exists (rosbag2's -o takes a folder) said only 'Is a directory'; `--out out`
     wrote an MCAP file that neither rosbags nor nmnet replay could then open, lacking the suffix."""
