@@ -14,6 +14,7 @@ import numpy as np
 
 from .bags import BagError, typestore
 from .caminfo import info_fields
+from .cli import output_folder
 from .datasets import Sequence
 from .imgconv import array_to_image_fields
 from .pairs import parse_seq_spec
@@ -84,6 +85,8 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
     ros1 = fmt == "ros1"
     if ros1 and out.suffix != ".bag":
         raise BagError(f"{out}: a ROS 1 bag is one file and is read by its .bag extension; name it {out.name}.bag")
+    output_folder(out.parent, "the output's folder", "the bag")
+    out.parent.mkdir(parents=True, exist_ok=True)  # the ROS 2 writer makes its own, the ROS 1 one did not
     ts = typestore(ros1)
     idx = list(seq.frames(frames))
     if ros1:

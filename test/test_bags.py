@@ -410,6 +410,14 @@ def test_a_bag_whose_content_is_not_its_extensions_format_is_named(bags, tmp_pat
         assert not (tmp_path / "o.mcap").exists()
     with pytest.raises(BagError, match="a ROS 1 bag is one file .* name it b1.bag"):
         make_bag(data_dir("kitti-07"), tmp_path / "b1", "ros1", frames=range(2))
+    # a ROS 1 bag into a folder not made yet: '[Errno 2] No such file' (the ROS 2 writers make theirs)
+    assert make_bag(data_dir("kitti-07"), tmp_path / "new" / "b.bag", "ros1", frames=range(2)) == 2
+    afile = tmp_path / "afile"
+    afile.write_text("a user's file")
+    for fmt, name in (("mcap", "b"), ("ros1", "b.bag")):  # through a file: '[Errno 20] Not a directory'
+        with pytest.raises(ValueError, match=f"the output's folder {afile} is a file: give a folder for the bag"):
+            make_bag(data_dir("kitti-07"), afile / name, fmt, frames=range(2))
+    assert afile.read_text() == "a user's file"
 
 
 def test_sigterm_mid_replay_leaves_valid_output(tmp_path):
