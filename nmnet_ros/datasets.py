@@ -99,11 +99,21 @@ def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row]) -
             except Unfit as e:
                 raise DatasetError(f"{path}:{n}: {e} in '{columns}', got {line.strip()!r}") from e
             except (ValueError, IndexError) as e:
-                hint = ("; the columns are separated by commas: this reads whitespace-separated text (for EuRoC's "
-                        "state_groundtruth_estimate0/data.csv, nanoseconds and qw first: `evo_traj euroc data.csv "
-                        "--save_as_tum` writes the TUM file)") if "," in line else ""
-                raise DatasetError(f"{path}:{n}: expected '{columns}', got {line.strip()!r}{hint}") from e
+                raise DatasetError(f"{path}:{n}: expected '{columns}', got {line.strip()!r}{_layout_hint(line)}") from e
     return rows
+
+
+def _layout_hint(line: str) -> str:
+    """What another common trajectory layout a malformed line is in, and how to convert it ('' if none)."""
+    if "," in line:
+        return ("; the columns are separated by commas: this reads whitespace-separated text (for EuRoC's "
+                "state_groundtruth_estimate0/data.csv, nanoseconds and qw first: `evo_traj euroc data.csv "
+                "--save_as_tum` writes the TUM file)")
+    if len(line.split()) == 12:
+        return ("; 12 numbers: a KITTI poses file (a 3x4 camera-to-world matrix a line, no time): evo's "
+                "contrib/kitti_poses_and_timestamps_to_trajectory.py POSES times.txt OUT writes it as TUM lines "
+                "with the sequence's times.txt")
+    return ""
 
 
 class Unfit(ValueError):

@@ -354,6 +354,11 @@ def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
     with pytest.raises(DatasetError, match=r"data.csv:2: expected 'timestamp tx ty tz qx qy qz qw', got .*separated by "
                                            r"commas.*`evo_traj euroc data.csv --save_as_tum`"):
         read_tum(tmp_path / "data.csv")  # EuRoC's ground truth, given as it comes
+    (tmp_path / "07.txt").write_text("1.000000e+00 0.000000e+00 0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00 "
+                                     "0.000000e+00 0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00 0.000000e+00\n")
+    with pytest.raises(DatasetError, match=r"07.txt:1: expected .*; 12 numbers: a KITTI poses file .*contrib/"
+                                           r"kitti_poses_and_timestamps_to_trajectory.py POSES times.txt OUT"):
+        read_tum(tmp_path / "07.txt")  # KITTI odometry's poses/07.txt, given as it comes
     (tmp_path / "empty.txt").write_text("# timestamp tx ty tz qx qy qz qw\n\n")
     with pytest.raises(DatasetError, match=r"empty.txt: no poses; expected lines 'timestamp tx ty tz"):
         read_tum(tmp_path / "empty.txt")
