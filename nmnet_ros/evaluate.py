@@ -273,6 +273,9 @@ def main(args: argparse.Namespace) -> int:
     print(markdown_table(res["metrics"]))
     if args.reference in res["errors"] and len(res["errors"]) > 1:
         print("\n" + "\n".join(difference_lines(res["errors"], args.reference)))
+    elif len(res["errors"]) > 1:  # the differences were left out without a word
+        print(f"\n(no AUC@5 differences: --reference {args.reference} is not among --methods; add it, or choose one "
+              "that is)")
     if len(set(groups)) > 1:
         print("\n" + per_sequence_table(res["errors"], groups, args.reference))
     if args.json:  # before the plot: the numbers are what a script reads

@@ -396,8 +396,9 @@ def test_eval_refuses_weights_of_the_other_variant(capsys):
         assert f"nmnet eval: error: {said}" in capsys.readouterr().err
 
 
-def test_eval_warns_of_folder_arguments_that_share_frames(tmp_path, cache, capsys):
-    """One folder given twice, or ranges that meet: the pairs in both were evaluated twice, silently."""
+def test_eval_warns_of_folder_arguments_that_share_frames_or_a_reference_it_did_not_run(tmp_path, cache, capsys):
+    """One folder given twice, or ranges that meet: the pairs in both were evaluated twice, silently. A --reference
+    not among --methods left the differences out without a word."""
     import json
 
     from nmnet_ros.cli import main
@@ -410,6 +411,11 @@ def test_eval_warns_of_folder_arguments_that_share_frames(tmp_path, cache, capsy
             "within them are evaluated twice and count twice in the means") in capsys.readouterr().err
     assert json.loads((tmp_path / "e.json").read_text())["ratio"]["pairs"] == 4  # (121, 122) twice
     assert main([*argv[:2], f"{seq}:122-123", *argv[3:]]) == 0 and "warning" not in capsys.readouterr().err  # 1 frame
+    argv[argv.index("ratio")] = "ratio,gms"  # two methods, the reference (ratio+magsac) not among them: said
+    assert main([*argv[:2], *argv[3:]]) == 0
+    assert ("(no AUC@5 differences: --reference ratio+magsac is not among --methods; add it, or choose one that is)"
+            in capsys.readouterr().out)
+    assert main([*argv[:2], *argv[3:], "--reference", "gms"]) == 0 and "AUC@5 minus gms's" in capsys.readouterr().out
 
 
 def test_eval_cli_writes_the_json_contract(tmp_path, cache):
