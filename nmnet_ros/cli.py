@@ -7,6 +7,7 @@ import importlib
 import math
 import os
 import sys
+import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -202,6 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     sys.argv[1:] = argv
     parser = build_parser()
     args = parser.parse_args(argv)
+    warnings.formatwarning = lambda message, *_, **__: f"warning: {message}\n"  # a user's line, not Python's source line
     if not getattr(args, "_module", None):  # a script calling bare `nmnet` must not read success
         parser.print_help(sys.stderr)
         print(f"nmnet: error: name a command: {', '.join(SUBCOMMANDS)} (nmnet COMMAND --help)", file=sys.stderr)

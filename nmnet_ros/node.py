@@ -23,9 +23,11 @@ import re
 import sys
 import threading
 import time
+import warnings
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -71,6 +73,8 @@ from .params import (
 from .pipeline import FrameResult, Frontend, Prepared, stamp_order, stamp_warning
 from .planes import NOTE as PLANE_NOTE
 from .posemsg import relative_pose_of_current
+
+T = TypeVar("T")
 
 
 def lasting_warning_due(seconds: int, first: int, cap: int = 600) -> bool:
@@ -162,7 +166,7 @@ class NMNetNode(Node):
 
         torch.set_num_threads(p["threads"])
         cv2.setNumThreads(p["threads"])
-        self.frontend = Frontend(None, frontend_config(p))
+        self.frontend = self._logging_warnings(lambda: Frontend(None, frontend_config(p)))
         self.get_logger().info(f"NM-Net arithmetic: {precision_note(p['nmnet_precision'])}")
         # the calibration as received (camera_info, else the fx..cy parameters); each frame gets it fitted to its size
         self.camera: Camera | None = None
@@ -214,6 +218,15 @@ class NMNetNode(Node):
         if self.camera is None:
             self.get_logger().info("waiting for camera_info (or set fx/fy/cx/cy parameters) before processing frames")
 
+    def _logging_warnings(self, build: Callable[[], T]) -> T:
+        """``build()``, with the core's Python warnings (weights without a calibrated cut) as this node's log lines."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            out = build()
+        for w in caught:
+            self.get_logger().warning(str(w.message))
+        return out
+
     def _on_set_parameters(self, params: list) -> SetParametersResult:
         """``ros2 param set``: check the new values, rebuild what they change, or refuse with the reason.
 
@@ -222,7 +235,7 @@ class NMNetNode(Node):
         p = {**self.params, **{q.name: q.value for q in params}}
         try:
             check_choices(p)
-            self.frontend.reconfigure(frontend_config(p))
+            self._logging_warnings(lambda: self.frontend.reconfigure(frontend_config(p)))
         except (ValueError, KeyError) as e:  # WeightsError is a ValueError: it names the file
             return SetParametersResult(successful=False, reason=str(e))
         changed = {q.name: q.value for q in params if self.params.get(q.name) != q.value}

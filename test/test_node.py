@@ -761,6 +761,26 @@ def test_ros_arguments_rcl_cannot_read_are_one_line_not_a_traceback(ros, tmp_pat
     assert "/project/src" not in out.split("nmnet_node: error:")[1], out
 
 
+def test_weights_without_a_calibrated_cut_are_said_in_the_nodes_log(ros, tmp_path):
+    """An unfinished training run's checkpoint keeps matches above 0.5; the warning is a ROS log line of the node,
+    not a Python UserWarning with its source line."""
+    import torch
+
+    from nmnet_ros.model import weights_dir
+
+    ck = torch.load(weights_dir() / "nmnet.pt", map_location="cpu", weights_only=True)
+    del ck["score_threshold"]
+    torch.save(ck, tmp_path / "last.pt")
+    node = NodeProcess(["--ros-args", "-p", f"weights:={tmp_path / 'last.pt'}"], ros, tmp_path / "node.log")
+    end = time.monotonic() + 60
+    while "waiting for camera_info" not in node.output() and node.alive() and time.monotonic() < end:
+        time.sleep(0.2)  # the node is up: it has built its front end
+    node.stop()
+    assert "no calibrated score threshold" in node.output(), node.output()
+    line = next(ln for ln in node.output().splitlines() if "no calibrated score threshold" in ln)
+    assert line.startswith("[WARN]") and "[nmnet_node]" in line and "UserWarning" not in node.output()
+
+
 def rss_mb(pid: int) -> float:
     for line in open(f"/proc/{pid}/status"):
         if line.startswith("VmRSS:"):

@@ -382,6 +382,27 @@ def test_seeds_below_one_are_refused(pairs):
         evaluate(pairs[:1], ["ratio+magsac"], seeds=0)
 
 
+def test_a_tools_warning_is_one_line_for_the_user(tmp_path, cache):
+    """Python's warning format (file:line: UserWarning, then the source line) is for developers; the tools print
+    'warning: ...' as they print their other warnings."""
+    import subprocess
+    import sys
+
+    import torch
+
+    from nmnet_ros.model import weights_dir
+
+    ck = torch.load(weights_dir() / "nmnet.pt", map_location="cpu", weights_only=True)
+    del ck["score_threshold"]
+    torch.save(ck, tmp_path / "last.pt")
+    run = subprocess.run([sys.executable, "-m", "nmnet_ros.cli", "eval", f"{data_dir('kitti-07')}:120-121", "--gaps", "1",
+                          "--methods", "nmnet", "--weights", str(tmp_path / "last.pt"), "--cache", str(cache.root),
+                          "--json", str(tmp_path / "e.json")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert f"warning: {tmp_path / 'last.pt'}: no calibrated score threshold" in run.stderr
+    assert "UserWarning" not in run.stderr and "warnings.warn" not in run.stderr
+
+
 def test_eval_refuses_weights_of_the_other_variant(capsys):
     """NM-Net-sp's checkpoint as --weights (or the reverse) was scored under the other variant's name, silently."""
     from nmnet_ros.cli import main
