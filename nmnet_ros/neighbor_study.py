@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +74,8 @@ def main(args: argparse.Namespace) -> int:
     for spec in args.seqs:
         path, frames = parse_seq_spec(spec)
         seq = Sequence.load(path)
+        for note in seq.notes():  # as nmnet eval and train say them
+            print(f"warning: {note}", file=sys.stderr)
         chosen = select_pairs(seq, args.gaps, frames)
         chosen = [(i, j) for i, j in chosen if i % args.stride == 0] if seq.pairs_file is None else chosen
         pairs += [make_pair(seq, i, j, cache) for i, j in chosen]

@@ -191,7 +191,7 @@ def test_a_tum_rgbd_folder_reads_as_it_is_and_other_benchmarks_are_named(tmp_pat
         Sequence.load(boat)
 
 
-def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_refused(tmp_path):
+def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_refused(tmp_path, capsys):
     """A downscaled copy of a dataset (images half camera.yaml's size) was evaluated with the full-size K: poses
     and labels silently wrong (ratio+magsac AUC@5 0.0 on Strecha fountain). K is fitted to the images, with a
     note; a crop or a folder of mixed sizes is named."""
@@ -214,6 +214,11 @@ def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_re
     cache = FeatureCache(make_detector("sift"), tmp_path / "cache")
     inliers = [make_pair(seq, 0, 1, cache).labels.mean() for seq in (full, half)]
     assert inliers[1] > 0.7 * inliers[0] > 0.1, inliers  # with the full-size K: 0.03 of the half-size matches
+    from nmnet_ros.cli import main  # the tools say it: eval and train (their tests), neighbors here
+
+    assert main(["neighbors", f"{tmp_path}:0-2", "--gaps", "1", "--stride", "1", "--detector", "sift", "--cache",
+                 str(tmp_path / "cache")]) == 0
+    assert f"warning: {half.size_note}" in capsys.readouterr().err
 
     cv2.imwrite(str(tmp_path / "images" / full.paths[2].name), full.image(2))  # one frame of another size
     with pytest.raises(DatasetError, match=r"0002.jpg: 768x512, but the folder's frames are 384x256 \(as its first "
