@@ -405,13 +405,18 @@ def _step(model: NMNet, opt: torch.optim.Optimizer, pool: ThreadPoolExecutor, ba
 RESUMABLE_CHANGES = {"epochs", "workers", "device", "init"}  # a resumed run may change these freely
 
 
-def options_changed(checkpoint: dict, config: dict, train_specs: list[str], val_specs: list[str]) -> list[str]:
-    """'name: then -> now' for each training option a resumed run changes (last.pt before this check: none known)."""
+def run_record(config: dict, train_specs: list[str], val_specs: list[str]) -> dict:
+    """What the run's checkpoints record of it: its options (tuples as the lists a checkpoint gives back) and folders."""
+    return {"train_config": {k: list(v) if isinstance(v, tuple) else v for k, v in config.items()}, "train": train_specs,
+            "val": val_specs}
+
+
+def options_changed(checkpoint: dict, record: dict) -> list[str]:
+    """'name: then -> now' for each training option a resumed run (its ``run_record``) changes from the checkpoint's
+    (a last.pt written before the record: none known)."""
     if "train_config" not in checkpoint:
         return []
-    then = {**checkpoint["train_config"], "train": checkpoint["train"], "val": checkpoint["val"]}
-    now = {**{k: list(v) if isinstance(v, tuple) else v for k, v in config.items()}, "train": train_specs,
-           "val": val_specs}
+    then, now = ({**r["train_config"], "train": r["train"], "val": r["val"]} for r in (checkpoint, record))
     return [f"{k}: {then.get(k)} -> {now[k]}" for k in now if k not in RESUMABLE_CHANGES and then.get(k) != now[k]]
 
 
@@ -420,6 +425,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     """Train; writes ``best.pt`` (by validation F), ``last.pt`` and ``history.json`` to out_dir."""
     c = {**DEFAULT_CONFIG, **(config or {})}
     kind = _checked_neighbors(c, train_specs)
+    record = run_record(c, train_specs, val_specs)
     if shared := shared_frames(train_specs, val_specs):  # said before any work (features: minutes)
         log(f"warning: --val takes --train's frames ({'; '.join(shared)}): validation F, which picks best.pt and the "
             "score threshold, then rewards memorising them; validate on other frames or scenes "
@@ -471,11 +477,12 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         torch.set_rng_state(ck["torch_rng"])
         start_epoch, best_f, history = ck["epoch"] + 1, ck["best_f"], ck["history"]
         log(f"resumed after epoch {ck['epoch']}, best val F {best_f:.2f}")
-        if changed := options_changed(ck, c, train_specs, val_specs):
+        if changed := options_changed(ck, record):
             log(f"warning: resumed with other options than the run was started with ({'; '.join(changed)}): best.pt "
                 "is kept while validation F beats the run's best so far, which other --val, --label-threshold or "
                 "--detector values make a different measure; start a new --out to compare them")
 
+    meta = {"config": model.config, **record, "commit": _git_commit()}  # the same for every epoch's checkpoints
     pool = ThreadPoolExecutor(c["workers"])
     t_start = time.time()
     try:
@@ -497,8 +504,6 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
             history.append(rec)
             log(f"epoch {epoch + 1}/{c['epochs']}  loss {rec['loss']:.4f}  val P {val['precision']:.1f} "
                 f"R {val['recall']:.1f} F {val['f1']:.1f}  ({rec['epoch_sec']:.0f}s)")
-            meta = {"config": model.config, "train_config": {k: list(v) if isinstance(v, tuple) else v for k, v in c.items()},
-                    "train": train_specs, "val": val_specs, "commit": _git_commit()}
             state = {k: v.cpu() for k, v in model.state_dict().items()}  # loadable without a GPU
             if val["f1"] > best_f:
                 best_f = val["f1"]
