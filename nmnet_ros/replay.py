@@ -22,7 +22,7 @@ import numpy as np
 from .bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
-from .cli import bounded, file_path, output_file, output_folder
+from .cli import bounded, file_path, not_a_folder, output_file, output_folder
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
@@ -555,8 +555,7 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
                              "choose another path")
     if args.json is not None and args.json.resolve() == args.out.resolve():
         raise ValueError(f"--json {args.json} is also --out: give the summary its own file")
-    if args.out.is_dir():  # the rest of --out's checks come as the output is opened
-        raise ValueError(f"--out {args.out} is a folder: give a file name, e.g. {args.out / 'nmnet.mcap'}")
+    not_a_folder(args.out, "--out", "nmnet.mcap")  # the rest of --out's checks come as the output is opened
     if args.out.suffix != ".mcap" and not args.out.exists():  # an existing file: McapOutput says whose it is
         raise ValueError(f"--out {args.out}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know "
                          f"by its .mcap suffix: give {args.out.with_suffix('.mcap')}")
