@@ -20,6 +20,7 @@ from nmnet_ros.neighbors import mine_neighbors
 from nmnet_ros.pairs import shared_frames
 from nmnet_ros.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
 from nmnet_ros.train import (
+    DEFAULT_CONFIG,
     MIN_THINNED_RATIO,
     balanced_bce,
     draw_augmentation,
@@ -27,8 +28,10 @@ from nmnet_ros.train import (
     draw_turn,
     essential_loss,
     load_pairs,
+    options_changed,
     pair_input,
     pair_weights,
+    run_record,
     sample_correspondences,
     sample_essential,
     train,
@@ -153,10 +156,15 @@ def test_a_run_stopped_with_ctrl_c_leaves_a_calibrated_best_pt(tmp_path):
     cfg = {"epochs": 3, "steps_per_epoch": 1, "batch": 2, "num_corr": 128, "gaps": (1,), "max_val_pairs": 1}
     said: list[str] = []
 
-    def log(line: str) -> None:
+    def log(line: str, stop_at: str = "epoch 2/3") -> None:
         said.append(line)
-        if line.startswith("epoch 2/3"):
-            raise KeyboardInterrupt  # as Ctrl-C lands in the second epoch
+        if line.startswith(stop_at):
+            raise KeyboardInterrupt  # as Ctrl-C lands in that epoch
+    with pytest.raises(KeyboardInterrupt):  # in the first epoch: no best.pt yet, nothing to calibrate
+        train([f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path / "first", cfg, cache_dir=tmp_path / "cache",
+              log=lambda line: log(line, "epoch 1/3"))
+    assert not (tmp_path / "first" / "best.pt").exists() and not any("calibrat" in line for line in said), said
+    said.clear()
     with pytest.raises(KeyboardInterrupt):
         train([f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path, cfg, cache_dir=tmp_path / "cache", log=log)
     ck = torch.load(tmp_path / "best.pt", map_location="cpu", weights_only=False)
@@ -164,6 +172,15 @@ def test_a_run_stopped_with_ctrl_c_leaves_a_calibrated_best_pt(tmp_path):
         ck["score_threshold"]
     assert said[-2].startswith("interrupted: calibrating best.pt") and said[-1].startswith("calibrated score threshold")
     assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_a_resume_compares_only_the_options_a_checkpoint_records():
+    """last.pt written before it recorded the run's options resumes without the check (nothing to compare); a record
+    says each changed option once, and not those a resume may change."""
+    record = run_record({**DEFAULT_CONFIG, "gaps": (1, 2)}, ["a"], ["b"])
+    assert options_changed({"epoch": 3, "best_f": 80.0}, record) == []
+    changed = run_record({**DEFAULT_CONFIG, "gaps": (1,), "epochs": 99, "workers": 4}, ["a"], ["c"])
+    assert options_changed(record, changed) == ["gaps: [1, 2] -> [1]", "val: ['b'] -> ['c']"]
 
 
 def test_an_out_that_is_a_file_is_refused_before_any_features(tmp_path):
