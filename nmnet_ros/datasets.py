@@ -389,11 +389,12 @@ class Sequence:
         """Whether groundtruth.txt gives frame i a pose."""
         return self.poses is not None and not np.isnan(self.poses[i, 3, 3])
 
-    def notes(self) -> list[str]:
-        """What to tell the user before using the folder: K scaled to the images, frames without a pose."""
-        return [note for note in (self.size_note, self.uncovered_note()) if note]
+    def notes(self, uncovered: str = "pairs with them are left out") -> list[str]:
+        """What to tell the user before using the folder: K scaled to the images, frames without a pose (and
+        ``uncovered``: what the tool does with those)."""
+        return [note for note in (self.size_note, self.uncovered_note(uncovered)) if note]
 
-    def uncovered_note(self) -> str | None:
+    def uncovered_note(self, consequence: str = "pairs with them are left out") -> str | None:
         """What to tell the user when groundtruth.txt leaves frames without a pose (None when it covers all)."""
         if self.poses is None:
             return None
@@ -403,7 +404,7 @@ class Sequence:
         listed = ", ".join(map(str, missing[:5])) + (", ..." if len(missing) > 5 else "")
         return (f"{self.root / 'groundtruth.txt'}: {len(missing)} of {len(self)} frames have no pose (none between two "
                 f"of the file's poses nor within half its spacing of one; frames {listed}); "
-                "pairs with them are left out")
+                f"{consequence}")
 
     def relative_pose(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """(R, t) of frame i in frame j: x_j = R x_i + t."""

@@ -7,6 +7,7 @@ pose, a PoseStamped and a /tf transform, stamped as images.txt; written with ``r
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import cv2
@@ -89,6 +90,8 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
     out.parent.mkdir(parents=True, exist_ok=True)  # the ROS 2 writer makes its own, the ROS 1 one did not
     ts = typestore(ros1)
     idx = list(seq.frames(frames))
+    for note in seq.notes("they are written without a ground-truth pose"):  # as nmnet eval and train say them
+        print(f"warning: {note}", file=sys.stderr)
     if ros1:
         from rosbags.rosbag1 import Writer as Writer1
 

@@ -142,6 +142,7 @@ def test_frames_the_ground_truth_does_not_cover_are_left_out_not_given_another_f
         seq.relative_pose(3, 4)
     assert make_bag(dst, tmp_path / "bag", "mcap", frames=range(3, 6)) == 3
     assert len(list(BagReader(tmp_path / "bag").messages({TOPICS["gt"]}))) == 2  # frames 3 and 5
+    assert "1 of 10 frames have no pose" in (err := capsys.readouterr().err) and "written without a ground-truth" in err
     pairs = load_eval_pairs([f"{dst}:3-5"], (1, 2), cache)  # nmnet eval says so, and evaluates (3, 5) only
     assert [(p.i, p.j) for p in pairs] == [(3, 5)] and "1 of 10 frames have no pose" in capsys.readouterr().err
     logs: list[str] = []  # nmnet train likewise, through its log
@@ -218,6 +219,8 @@ def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_re
 
     assert main(["neighbors", f"{tmp_path}:0-2", "--gaps", "1", "--stride", "1", "--detector", "sift", "--cache",
                  str(tmp_path / "cache")]) == 0
+    assert f"warning: {half.size_note}" in capsys.readouterr().err
+    assert main(["make-bag", f"{tmp_path}:0-1", str(tmp_path / "bag")]) == 0  # make-bag too: it writes the fitted K
     assert f"warning: {half.size_note}" in capsys.readouterr().err
 
     cv2.imwrite(str(tmp_path / "images" / full.paths[2].name), full.image(2))  # one frame of another size
