@@ -27,7 +27,7 @@ from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
 from .model import NEIGHBORS, load_model
 from .model_fast import precision_note
-from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, shared_frames, to_correspondences
+from .pairs import PairData, make_pair, no_pairs_reason, parse_seq_spec, select_pairs, shared_frames, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, ROBUST, build
 
@@ -42,12 +42,15 @@ def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache
         for note in seq.notes():
             print(f"warning: {note}", file=sys.stderr)
         chosen = select_pairs(seq, gaps, frames)
+        if not chosen:
+            raise ValueError(f"no pairs to evaluate: {no_pairs_reason(seq, spec, gaps, frames)}")
         if seq.pairs_file is None:
             chosen = [(i, j) for i, j in chosen if i % stride == 0]
+        if not chosen:
+            raise ValueError(f"no pairs to evaluate: {spec}: none of its pairs starts at a multiple of --stride {stride} "
+                             "(give a smaller one)")
         if max_pairs and len(chosen) > max_pairs:
             chosen = [chosen[k] for k in np.linspace(0, len(chosen) - 1, max_pairs).round().astype(int)]
-        if not chosen:
-            raise ValueError(f"{path}: no pairs with ground truth and motion to evaluate")
         t0 = time.perf_counter()
         pairs += [make_pair(seq, i, j, cache) for i, j in progress(chosen, f"features {seq.name}", "pair")]
         print(f"eval: {seq.name}: {len(chosen)} pairs ready in {time.perf_counter() - t0:.0f} s", file=sys.stderr)

@@ -74,6 +74,16 @@ def select_pairs(seq: Sequence, gaps: tuple[int, ...], frames: range | None = No
     return out
 
 
+def no_pairs_reason(seq: Sequence, spec: str, gaps: tuple[int, ...], frames: range | None = None) -> str:
+    """Why ``select_pairs`` gave ``spec`` no pairs: its frames make none (at these gaps), or none has what labels need."""
+    n = len(seq.pairs(gaps, frames))
+    by = "pairs.txt" if seq.pairs_file is not None else f"gaps {','.join(map(str, gaps))}"
+    if not n:
+        return f"{spec}: its frames make no pairs ({by})"
+    return (f"{spec}: none of its {n} frame pairs ({by}) has a ground-truth pose on both frames, motion between them "
+            "(epipolar labels need a baseline) and views within 40 degrees")
+
+
 def make_pair(seq: Sequence, i: int, j: int, cache: FeatureCache, match_config: dict | None = None,
               label_threshold: float = LABEL_THRESHOLD) -> PairData:
     """Features (cached), nearest-neighbour matches and ground-truth labels of pair (i, j)."""

@@ -34,7 +34,7 @@ from .geometry import apply_homography, eight_point_rows, essential_from_pose, h
 from .metrics import prf
 from .model import NEIGHBORS, NMNet, WeightsError, load_model, network_input
 from .neighbors import mine_neighbors
-from .pairs import PairData, make_pair, parse_seq_spec, select_pairs, shared_frames
+from .pairs import PairData, make_pair, no_pairs_reason, parse_seq_spec, select_pairs, shared_frames
 
 DEFAULT_CONFIG: dict = {
     "variant": "nmnet",  # or "nmnet-sp"
@@ -75,11 +75,8 @@ def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min
         for note in seq.notes():
             log(f"  warning: {note}")
         chosen = select_pairs(seq, gaps, frames)
-        if not chosen and (n := len(seq.pairs(gaps, frames))):
-            by = "pairs.txt" if seq.pairs_file is not None else f"gaps {','.join(map(str, gaps))}"
-            log(f"  warning: {spec}: none of its {n} frame pairs ({by}) has a ground-truth "
-                "pose on both frames, motion between them (epipolar labels need a baseline) and views within 40 "
-                "degrees")
+        if not chosen:
+            log(f"  warning: {no_pairs_reason(seq, spec, gaps, frames)}")
         t0 = time.perf_counter()
         made = (make_pair(seq, i, j, cache, label_threshold=label_threshold)
                 for i, j in progress(chosen, f"features {seq.name}", "pair"))  # minutes on a fresh cache

@@ -28,6 +28,26 @@ def test_static_camera_pairs_are_excluded():
     assert select_pairs(seq, (1, 5)) == []
 
 
+def test_eval_says_why_a_folder_gives_no_pairs(tmp_path):
+    """nmnet eval said 'no pairs with ground truth and motion to evaluate' for a standing camera, a range too short
+    for the gaps and a --stride past the range alike; it names which, as train does, before any features."""
+    from nmnet_ros.cache import FeatureCache
+    from nmnet_ros.detectors import make_detector
+    from nmnet_ros.evaluate import load_eval_pairs
+
+    cache = FeatureCache(make_detector("sift"), tmp_path)
+    euroc, kitti = data_dir("euroc-v101-cam0"), data_dir("kitti-07")
+    with pytest.raises(ValueError, match=f"^no pairs to evaluate: {euroc}: none of its 187 frame pairs \\(gaps 1,2\\) "
+                                         "has a ground-truth pose on both frames, motion between them"):
+        load_eval_pairs([str(euroc)], (1, 2), cache)
+    with pytest.raises(ValueError, match=f"{kitti}:3-4: its frames make no pairs \\(gaps 3\\)$"):
+        load_eval_pairs([f"{kitti}:3-4"], (3,), cache)
+    with pytest.raises(ValueError, match=f"{kitti}:3-5: none of its pairs starts at a multiple of --stride 5"):
+        load_eval_pairs([f"{kitti}:3-5"], (1,), cache, stride=5)
+    assert not any(tmp_path.iterdir())  # no features computed
+    assert len(load_eval_pairs([f"{kitti}:3-5"], (1,), cache, stride=2)) == 1  # (4, 5)
+
+
 def test_a_frame_range_outside_the_folder_is_named(tmp_path):
     """'PATH:a-b' past the last frame (or with a > b) is an error naming the folder's frames, not an IndexError
     (eval, train; make-bag before it writes anything)."""
