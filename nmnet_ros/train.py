@@ -363,6 +363,11 @@ def _checked_neighbors(c: dict, train_specs: list[str]) -> str:
         raise ValueError(f"--workers must be a whole number >= 1 (threads mining neighbours), got {c['workers']!r}")
     if str(c["device"]).startswith("cuda") and not torch.cuda.is_available():
         raise ValueError(f"--device {c['device']}: torch {torch.__version__} sees no CUDA GPU here; use --device cpu")
+    try:
+        torch.empty(1, device=c["device"])  # a name torch does not know, a GPU index past the last, MPS off macOS
+    except (RuntimeError, AssertionError) as e:
+        first = (str(e).strip() or type(e).__name__).splitlines()[0].split(". ")[0][:200]  # MPS's runs to 2000 chars
+        raise ValueError(f"--device {c['device']}: torch cannot use it ({first}); use cpu or cuda (cuda:N for GPU N)") from e
     if not 0 < c["label_threshold"] < 1:
         raise ValueError(f"--label-threshold must be in (0, 1) (squared normalised distance), got {c['label_threshold']}")
     if not 0 <= c["thin_inliers"] <= 1:

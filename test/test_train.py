@@ -57,6 +57,15 @@ def test_cuda_without_a_gpu_is_a_clear_error(tmp_path):
     assert not any(tmp_path.iterdir())  # refused before any work
 
 
+@pytest.mark.parametrize(("device", "said"), [("foo", "Expected one of cpu, cuda"), ("meta:x", "Invalid device string")])
+def test_a_device_torch_cannot_use_is_a_clear_error(tmp_path, device, said):
+    """--device with a name torch does not know ended in torch's traceback at the first tensor."""
+    seq = str(data_dir("strecha-fountain-p11"))
+    with pytest.raises(ValueError, match=f"^--device {device}: torch cannot use it \\({said}.*\\); use cpu or cuda"):
+        train([seq], [seq], tmp_path, {"device": device}, cache_dir=tmp_path / "cache")
+    assert not any(tmp_path.iterdir())  # refused before any work
+
+
 @pytest.mark.parametrize("workers", [0, -2])
 def test_workers_below_one_is_a_clear_error(tmp_path, workers):
     seq = str(data_dir("strecha-fountain-p11"))
