@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import time
 from collections.abc import Callable
@@ -368,6 +369,9 @@ def _checked_neighbors(c: dict, train_specs: list[str]) -> str:
     except (RuntimeError, AssertionError) as e:
         first = (str(e).strip() or type(e).__name__).splitlines()[0].split(". ")[0][:200]  # MPS's runs to 2000 chars
         raise ValueError(f"--device {c['device']}: torch cannot use it ({first}); use cpu or cuda (cuda:N for GPU N)") from e
+    if not 0 <= c["lr"] < math.inf:  # Adam refused a negative one only after the features
+        raise ValueError(f"--lr is Adam's step size, a number >= 0 (default {DEFAULT_CONFIG['lr']:g}; 0 keeps --init's "
+                         f"weights: validation and calibration only), got {c['lr']}")
     if not 0 < c["label_threshold"] < 1:
         raise ValueError(f"--label-threshold must be in (0, 1) (squared normalised distance), got {c['label_threshold']}")
     if not 0 <= c["thin_inliers"] <= 1:

@@ -228,7 +228,9 @@ def test_validation_on_training_frames_is_warned_before_any_features():
                                                      ("turn_deg", 90.0, "--turn-deg must be in"),
                                                      ("balance", -0.5, "--balance must be in"),
                                                      ("balance", 1.5, "--balance must be in"),
-                                                     ("ess_loss", -0.1, "--ess-loss is a weight >= 0")])
+                                                     ("ess_loss", -0.1, "--ess-loss is a weight >= 0"),
+                                                     ("lr", -1e-3, "--lr is Adam's step size, a number >= 0"),
+                                                     ("lr", float("nan"), "--lr is Adam's step size, a number >= 0")])
 def test_option_out_of_range_is_a_clear_error(tmp_path, key, value, match):
     seq = str(data_dir("strecha-fountain-p11"))
     with pytest.raises(ValueError, match=match):
