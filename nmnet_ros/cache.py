@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +26,7 @@ class FeatureCache:
         self.detector = detector
         self.root = Path(root) if root is not None else default_cache_dir()
         self._memo: dict[Path, Features] = {}  # one object per frame, shared by all its pairs
+        self.writable = True  # until a write fails
 
     def path(self, seq: Sequence, i: int) -> Path:
         """Cache file of frame i; the folder's absolute path is hashed so equal names do not collide, and the image
@@ -47,8 +50,21 @@ class FeatureCache:
             except (OSError, ValueError, KeyError):
                 p.unlink(missing_ok=True)  # a torn write from an interrupted run: recompute
         f = self.detector(seq.image(i))
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_name(p.stem + f".{os.getpid()}.tmp.npz")
-        np.savez(tmp, **f.to_npz())
-        tmp.replace(p)
+        if self.writable:
+            self._save(f, p)
         return f
+
+    def _save(self, f: Features, p: Path) -> None:
+        """Write ``f`` to ``p`` through a temporary file; a cache that cannot be written (a file in its place, a
+        read-only home, a full disk) is said once and the work goes on uncached: it is only a cache."""
+        tmp = p.with_name(p.stem + f".{os.getpid()}.tmp.npz")
+        try:
+            p.parent.mkdir(parents=True, exist_ok=True)
+            np.savez(tmp, **f.to_npz())
+            tmp.replace(p)
+        except OSError as e:
+            with contextlib.suppress(OSError):  # a part written before the disk filled
+                tmp.unlink(missing_ok=True)
+            self.writable = False
+            warnings.warn(f"feature cache {self.root}: cannot write it ({e.strerror or e}); features are computed again "
+                          "each run: give a writable folder with --cache or NMNET_CACHE", stacklevel=2)

@@ -48,3 +48,23 @@ def test_a_missing_image_is_named_by_the_cache_before_any_detection(tmp_path):
     with pytest.raises(DatasetError, match=r"gone.jpg: cannot read image: No such file"):
         FeatureCache(make_detector("sift"), tmp_path / "cache")(Sequence.load(folder), 0)
     assert not (tmp_path / "cache").exists()
+
+
+def test_a_cache_that_cannot_be_written_is_said_once_and_the_work_goes_on(tmp_path):
+    """--cache naming a file (or NMNET_CACHE, or a read-only home) stopped eval and train with '[Errno 20] Not a
+    directory' after the first frame's detection; the features are a cache: said once, computed without it."""
+    from nmnet_ros.cli import main
+
+    (tmp_path / "afile").write_text("not a folder")
+    seq = Sequence.load(data_dir("strecha-fountain-p11"))
+    detector = make_detector("sift")
+    cache = FeatureCache(detector, tmp_path / "afile")
+    with pytest.warns(UserWarning, match=f"feature cache {tmp_path / 'afile'}: cannot write it .*give a writable folder"
+                                         " with --cache or NMNET_CACHE") as said:
+        f = [cache(seq, i) for i in (0, 1, 2)]
+    assert len(said) == 1 and not cache.writable and np.array_equal(f[1].keypoints, detector(seq.image(1)).keypoints)
+    assert (tmp_path / "afile").read_text() == "not a folder" and os.listdir(tmp_path) == ["afile"]
+    with pytest.warns(UserWarning, match=f"feature cache {tmp_path / 'afile' / 'sub'}: cannot write it") as said:
+        assert main(["eval", f"{seq.root}:0-2", "--gaps", "1", "--detector", "sift", "--methods", "ratio", "--cache",
+                     str(tmp_path / "afile" / "sub"), "--json", str(tmp_path / "r.json")]) == 0
+    assert len(said) == 1 and (tmp_path / "r.json").is_file()
