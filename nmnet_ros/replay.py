@@ -271,12 +271,18 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             bar.close()
         run.warnings = notes.counts
         notes.close()
-    empty = f"no frame in --start/--duration's {window[0]:g} .. {window[1]:g} s: the bag ends before" \
-        if window is not None and not n_frames else None
-    for w in [*reader.new_warnings(), truth_missed(truth, [s.stamp for s in run.steps]), empty]:
+    for w in [*reader.new_warnings(), truth_missed(truth, [s.stamp for s in run.steps]), window_missed(window, n_frames)]:
         if w:
             log(f"warning: {w}")
     return run, n_frames, overlay
+
+
+def window_missed(window: tuple[float, float] | None, frames: int) -> str | None:
+    """What to say when ``--start``/``--duration`` left no frame to replay (offline and live alike)."""
+    if window is None or frames:
+        return None
+    return (f"no frame in --start/--duration's {window[0]:g} .. {window[1]:g} s: the bag ends before (both count "
+            "seconds after the bag's first frame)")
 
 
 def truth_missed(truth: Trajectory | None, stamps: list[float]) -> str | None:
@@ -709,6 +715,8 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
         signal.signal(signal.SIGTERM, old)
         for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
             print(f"warning: {w}")
+    if not interrupted and (w := window_missed(replay_window(args), stats["published"])):
+        print(f"warning: {w}")
     summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth), params, interrupted)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
