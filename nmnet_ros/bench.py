@@ -252,9 +252,18 @@ def bench_hd(frames: list[np.ndarray], camera: Camera, size: tuple[int, int] = (
     return out
 
 
+def correspondence_counts(text: str) -> tuple[int, ...]:
+    """``--sizes``' value, '1000,2000': counts >= 1 (argparse names the option when it is not)."""
+    try:
+        return tuple(whole(1)(s) for s in text.split(","))
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected correspondence counts >= 1, comma-separated "
+                                         "(1000,2000)") from None
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet bench``."""
-    p.add_argument("--sizes", default="1000,2000", help="correspondence counts")
+    p.add_argument("--sizes", type=correspondence_counts, default=(1000, 2000), help="correspondence counts, e.g. 1000,2000")
     p.add_argument("--repeat", type=whole(1), default=20)
     p.add_argument("--json", type=file_path, default=None, help="write the numbers as JSON")
     p.add_argument("--pipeline", action="store_true", help="also time every pipeline stage on the sample bag's frames")
@@ -273,7 +282,7 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    sizes = tuple(int(s) for s in args.sizes.split(","))
+    sizes = args.sizes
     print(f"torch threads: {torch.get_num_threads()}")
     res = {"neighbors": bench_neighbors(sizes, args.repeat)}
     print("| N | compatibility (median / p90 ms) | spatial kNN ms | per-correspondence loop ms | speed-up |")

@@ -48,6 +48,8 @@ def test_cli_without_a_command_fails_naming_the_commands():
     (["train", "--train", "d", "--val", "d", "--out", "o", "--seed", "x"], "--seed", "'x': expected a whole number >= 0"),
     (["neighbors", "d", "--k", "0"], "--k", "'0': expected a whole number >= 1"),
     (["bench", "--repeat", "0"], "--repeat", "'0': expected a whole number >= 1"),
+    (["bench", "--sizes", "abc"], "--sizes", "'abc': expected correspondence counts >= 1"),  # was "invalid literal"
+    (["bench", "--sizes", "1000,0"], "--sizes", "'1000,0': expected correspondence counts >= 1"),  # was a row of 0s
     # an output file ending in '/' meant a folder: it became a file of the folder's name
     (["replay", "b.mcap", "--out", "results/"], "--out", "'results/' ends in '/', a folder: give a file name in it"),
     (["replay", "b.mcap", "--out", "o.mcap", "--json", "res/"], "--json", "'res/' ends in '/', a folder"),
