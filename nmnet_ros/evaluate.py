@@ -33,8 +33,9 @@ from .selectors import METHODS, ROBUST, build
 
 
 def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, stride: int = 1,
-                    max_pairs: int | None = None) -> list[PairData]:
-    """Pairs of every 'PATH[:a-b]' (pairs.txt's, within a-b, when present)."""
+                    max_pairs: int | None = None, tool: str = "eval") -> list[PairData]:
+    """Pairs of every 'PATH[:a-b]' (pairs.txt's, within a-b, when present), with the folder's notes, or why it has
+    none; ``tool`` names the command in the progress lines (eval, neighbors)."""
     pairs = []
     for spec in specs:
         path, frames = parse_seq_spec(spec)
@@ -53,7 +54,7 @@ def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache
             chosen = [chosen[k] for k in np.linspace(0, len(chosen) - 1, max_pairs).round().astype(int)]
         t0 = time.perf_counter()
         pairs += [make_pair(seq, i, j, cache) for i, j in progress(chosen, f"features {seq.name}", "pair")]
-        print(f"eval: {seq.name}: {len(chosen)} pairs ready in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        print(f"{tool}: {seq.name}: {len(chosen)} pairs ready in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return pairs
 
 

@@ -8,17 +8,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from .cache import FeatureCache
 from .cli import file_path, gaps, output_file, whole
-from .datasets import Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
+from .evaluate import load_eval_pairs
 from .neighbors import compatibility_neighbors, spatial_neighbors
-from .pairs import PairData, make_pair, parse_seq_spec, select_pairs
+from .pairs import PairData
 
 BUCKETS = ((0, 20), (20, 35), (35, 50), (50, 101))
 
@@ -70,15 +69,7 @@ def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet neighbors``."""
     output_file(args.json, "--json", "neighbors.json")
     cache = FeatureCache(make_detector(args.detector), args.cache)
-    pairs = []
-    for spec in args.seqs:
-        path, frames = parse_seq_spec(spec)
-        seq = Sequence.load(path)
-        for note in seq.notes():  # as nmnet eval and train say them
-            print(f"warning: {note}", file=sys.stderr)
-        chosen = select_pairs(seq, args.gaps, frames)
-        chosen = [(i, j) for i, j in chosen if i % args.stride == 0] if seq.pairs_file is None else chosen
-        pairs += [make_pair(seq, i, j, cache) for i, j in chosen]
+    pairs = load_eval_pairs(args.seqs, args.gaps, cache, args.stride, tool="neighbors")  # eval's pairs, notes, reasons
     res = study(pairs, args.k)
     print("| pair inlier ratio | pairs | compatibility nbrs inlier % | spatial kNN inlier % |")
     print("|---|---|---|---|")

@@ -28,7 +28,7 @@ def test_static_camera_pairs_are_excluded():
     assert select_pairs(seq, (1, 5)) == []
 
 
-def test_eval_says_why_a_folder_gives_no_pairs(tmp_path):
+def test_eval_and_neighbors_say_why_a_folder_gives_no_pairs(tmp_path, capsys):
     """nmnet eval said 'no pairs with ground truth and motion to evaluate' for a standing camera, a range too short
     for the gaps and a --stride past the range alike; it names which, as train does, before any features."""
     from nmnet_ros.cache import FeatureCache
@@ -46,6 +46,10 @@ def test_eval_says_why_a_folder_gives_no_pairs(tmp_path):
         load_eval_pairs([f"{kitti}:3-5"], (1,), cache, stride=5)
     assert not any(tmp_path.iterdir())  # no features computed
     assert len(load_eval_pairs([f"{kitti}:3-5"], (1,), cache, stride=2)) == 1  # (4, 5)
+    from nmnet_ros.cli import main  # nmnet neighbors printed an empty table, "0 pairs", exit 0
+
+    assert main(["neighbors", str(euroc), "--gaps", "1", "--detector", "sift", "--cache", str(tmp_path)]) == 2
+    assert f"nmnet neighbors: error: no pairs to evaluate: {euroc}: none of its 94 frame pairs" in capsys.readouterr().err
 
 
 def test_a_frame_range_outside_the_folder_is_named(tmp_path):
