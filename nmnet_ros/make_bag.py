@@ -42,9 +42,10 @@ def _messages_for_frame(ts, seq: Sequence, i: int, compressed: bool, ros1: bool)
     hdr = _header(ts, t, "camera", ros1, i)
     img = seq.image(i)
     out = []
-    if compressed:
-        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])
-        msg = ts.types["sensor_msgs/msg/CompressedImage"](header=hdr, format="jpeg", data=buf.ravel())
+    if compressed:  # JPEG holds 8 bits: OpenCV clipped a 16-bit frame to 255 (white); PNG keeps it, as image_transport
+        fmt, ext, opts = ("jpeg", ".jpg", [cv2.IMWRITE_JPEG_QUALITY, 90]) if img.dtype == np.uint8 else ("png", ".png", [])
+        ok, buf = cv2.imencode(ext, img, opts)
+        msg = ts.types["sensor_msgs/msg/CompressedImage"](header=hdr, format=fmt, data=buf.ravel())
         out.append((TOPICS["compressed"], "sensor_msgs/msg/CompressedImage", msg))
     else:
         f = array_to_image_fields(img)
@@ -118,7 +119,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("seq", metavar="SEQ_DIR[:a-b]", help="sequence folder (optional frame range)")
     p.add_argument("out", type=Path, help="output: ROS 2 bag directory (mcap, sqlite3) or .bag file (ros1)")
     p.add_argument("--format", choices=FORMATS, default="mcap")
-    p.add_argument("--compressed", action="store_true", help="JPEG sensor_msgs/CompressedImage instead of Image")
+    p.add_argument("--compressed", action="store_true", help="sensor_msgs/CompressedImage instead of Image: JPEG, PNG for 16-bit frames")
 
 
 def main(args: argparse.Namespace) -> int:

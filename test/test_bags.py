@@ -98,6 +98,28 @@ def test_round_trip_all_formats_same_frames_and_results(bags, tmp_path):
     assert results["mcap"]["median_rot_deg"] < 1.0
 
 
+def test_a_compressed_bag_of_16_bit_frames_keeps_them(tmp_path):
+    """make-bag --compressed wrote every frame as JPEG, which holds 8 bits: OpenCV clipped a 12-bit camera's frames
+    to white without a word. 16-bit frames go in as PNG (as image_transport's compressed PNG) and read back the same."""
+    import cv2
+
+    src, folder = data_dir("strecha-fountain-p11"), tmp_path / "f16"
+    (folder / "images").mkdir(parents=True)
+    for name in ("camera.yaml", "groundtruth.txt"):
+        shutil.copy(src / name, folder / name)
+    rows = [ln.split() for ln in (src / "images.txt").read_text().splitlines() if ln and not ln.startswith("#")][:2]
+    for _, image in rows:
+        frame = cv2.imread(str(src / image), cv2.IMREAD_GRAYSCALE).astype(np.uint16) * 16  # 12 bits
+        cv2.imwrite(str(folder / "images" / (Path(image).stem + ".png")), frame)
+    (folder / "images.txt").write_text("".join(f"{t} images/{Path(image).stem}.png\n" for t, image in rows))
+    frames = {}
+    for kind, compressed in (("raw", False), ("png", True)):
+        assert make_bag(folder, tmp_path / kind, "mcap", compressed=compressed) == 2
+        frames[kind] = [f.image for f in read_frames(BagReader(tmp_path / kind))[0]]
+    assert [f.dtype for f in frames["png"]] == [np.uint16] * 2 and 2048 < frames["png"][0].max() <= 4080  # JPEG: 255
+    assert all(np.array_equal(a, b) for a, b in zip(frames["raw"], frames["png"], strict=True))
+
+
 def test_truncated_mcap_reports_and_uses_readable_part(tmp_path):
     src = next(SAMPLE_BAG.glob("*.mcap"))
     cut = tmp_path / "cut.mcap"
