@@ -158,12 +158,20 @@ def _pose_row(fields: list[str]) -> list[float]:
     return row
 
 
+MAX_POSE_SPACING_S = 1e5  # a day between ground-truth poses: stamps in ns (1e8 at 10 Hz), not seconds
+
+
 def read_tum(path: Path) -> Trajectory:
     """TUM trajectory file ('timestamp tx ty tz qx qy qz qw' lines, T_WC) -> :class:`Trajectory`."""
     rows = _read_table(path, "timestamp tx ty tz qx qy qz qw", _pose_row)
     if not rows:
         raise DatasetError(f"{path}: no poses; expected lines 'timestamp tx ty tz qx qy qz qw'")
     a = np.array(rows, np.float64)
+    steps = np.diff(np.sort(a[:, 0]))
+    if (steps > 0).any() and (gap := float(np.median(steps[steps > 0]))) > MAX_POSE_SPACING_S:
+        raise DatasetError(f"{path}: poses a median of {gap:.3g} s apart: the stamps look like nanoseconds (as ROS "
+                           "tools write them); a TUM file's first column is seconds: divide it by 1e9, e.g. "
+                           "awk '!/^#/{$1 = sprintf(\"%.9f\", $1 / 1e9)} 1' in.txt > out.txt")
     T = np.tile(np.eye(4), (len(a), 1, 1))
     for n, r in enumerate(a):
         T[n, :3, :3] = quat_to_rot(r[4:8])

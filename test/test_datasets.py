@@ -52,6 +52,30 @@ def test_eval_and_neighbors_say_why_a_folder_gives_no_pairs(tmp_path, capsys):
     assert f"nmnet neighbors: error: no pairs to evaluate: {euroc}: none of its 94 frame pairs" in capsys.readouterr().err
 
 
+def test_ground_truth_stamped_in_nanoseconds_is_named_with_the_conversion(tmp_path):
+    """A TUM file with ROS's nanosecond stamps (kitti-07's from 0: 1.04e8 apart) was read as seconds: every frame
+    of a replay fell between its first two poses and was scored as standing still. Refused, with a command that
+    converts it; the converted file reads as the original."""
+    import shutil as sh
+    import subprocess
+
+    from nmnet_ros.datasets import read_tum
+
+    src = data_dir("kitti-07") / "groundtruth.txt"
+    rows = [ln.split() for ln in src.read_text().splitlines() if ln and not ln.startswith("#")]
+    ns = tmp_path / "gt_ns.txt"
+    ns.write_text("# timestamp tx ty tz qx qy qz qw\n" + "".join(
+        " ".join([str(round(float(r[0]) * 1e9)), *r[1:]]) + "\n" for r in rows))
+    with pytest.raises(DatasetError, match=r"gt_ns.txt: poses a median of 1.04e\+08 s apart: the stamps look like "
+                                           "nanoseconds") as said:
+        read_tum(ns)
+    command = str(said.value).split("e.g. ")[1].replace("in.txt", str(ns)).replace("out.txt", str(tmp_path / "s.txt"))
+    if sh.which("awk"):
+        subprocess.run(["sh", "-c", command], check=True)
+        a, b = read_tum(tmp_path / "s.txt"), read_tum(src)
+        assert np.allclose(a.stamps, b.stamps, atol=1e-9) and np.allclose(a.poses, b.poses)
+
+
 def test_a_frame_range_outside_the_folder_is_named(tmp_path):
     """'PATH:a-b' past the last frame (or with a > b) is an error naming the folder's frames, not an IndexError
     (eval, train; make-bag before it writes anything)."""
