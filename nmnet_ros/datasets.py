@@ -158,7 +158,17 @@ def _pose_row(fields: list[str]) -> list[float]:
     return row
 
 
-MAX_POSE_SPACING_S = 1e5  # a day between ground-truth poses: stamps in ns (1e8 at 10 Hz), not seconds
+MAX_SPACING_S = 1e5  # a day between ground-truth poses or frames: stamps in ns (1e8 at 10 Hz), not seconds
+
+
+def _check_seconds(path: Path, stamps: np.ndarray, what: str) -> None:
+    """Refuse a file whose stamps are nanoseconds (as ROS tools write them), which read as seconds put days between
+    its rows, naming the conversion."""
+    steps = np.diff(np.sort(stamps))
+    if (steps > 0).any() and (gap := float(np.median(steps[steps > 0]))) > MAX_SPACING_S:
+        raise DatasetError(f"{path}: {what} a median of {gap:.3g} s apart: the stamps look like nanoseconds (as ROS "
+                           "tools write them); the first column is seconds: divide it by 1e9, e.g. "
+                           "awk '!/^#/{$1 = sprintf(\"%.9f\", $1 / 1e9)} 1' in.txt > out.txt")
 
 
 def read_tum(path: Path) -> Trajectory:
@@ -167,11 +177,7 @@ def read_tum(path: Path) -> Trajectory:
     if not rows:
         raise DatasetError(f"{path}: no poses; expected lines 'timestamp tx ty tz qx qy qz qw'")
     a = np.array(rows, np.float64)
-    steps = np.diff(np.sort(a[:, 0]))
-    if (steps > 0).any() and (gap := float(np.median(steps[steps > 0]))) > MAX_POSE_SPACING_S:
-        raise DatasetError(f"{path}: poses a median of {gap:.3g} s apart: the stamps look like nanoseconds (as ROS "
-                           "tools write them); a TUM file's first column is seconds: divide it by 1e9, e.g. "
-                           "awk '!/^#/{$1 = sprintf(\"%.9f\", $1 / 1e9)} 1' in.txt > out.txt")
+    _check_seconds(path, a[:, 0], "poses")
     T = np.tile(np.eye(4), (len(a), 1, 1))
     for n, r in enumerate(a):
         T[n, :3, :3] = quat_to_rot(r[4:8])
@@ -334,6 +340,7 @@ class Sequence:
         if not rows:
             raise DatasetError(f"{listing}: no frames listed")
         stamps = np.array([stamp for stamp, _ in rows])
+        _check_seconds(listing, stamps, "frames")
         paths = [path for _, path in rows]
         poses = None
         if (root / "groundtruth.txt").is_file():

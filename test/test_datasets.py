@@ -74,6 +74,12 @@ def test_ground_truth_stamped_in_nanoseconds_is_named_with_the_conversion(tmp_pa
         subprocess.run(["sh", "-c", command], check=True)
         a, b = read_tum(tmp_path / "s.txt"), read_tum(src)
         assert np.allclose(a.stamps, b.stamps, atol=1e-9) and np.allclose(a.poses, b.poses)
+    folder = tmp_path / "seq"  # a sequence folder's images.txt likewise (its frames found no pose)
+    shutil.copytree(data_dir("strecha-fountain-p11"), folder)
+    listing = [ln.split() for ln in (folder / "images.txt").read_text().splitlines() if ln and ln[0] != "#"]
+    (folder / "images.txt").write_text("".join(f"{round(float(t) * 1e9)} {p}\n" for t, p in listing))
+    with pytest.raises(DatasetError, match="images.txt: frames a median of 1e\\+09 s apart: the stamps look like nano"):
+        Sequence.load(folder)
 
 
 def test_a_frame_range_outside_the_folder_is_named(tmp_path):
