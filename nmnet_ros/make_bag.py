@@ -7,6 +7,7 @@ pose, a PoseStamped and a /tf transform, stamped as images.txt; written with ``r
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 from pathlib import Path
 
@@ -16,7 +17,7 @@ import numpy as np
 from .bags import BagError, typestore
 from .caminfo import info_fields
 from .cli import output_folder
-from .datasets import Sequence
+from .datasets import DatasetError, Sequence
 from .imgconv import array_to_image_fields
 from .pairs import parse_seq_spec
 from .posemsg import rot_to_quat
@@ -105,13 +106,29 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
         writer = Writer2(out, version=9, storage_plugin=plugin)
     serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
     conns: dict[str, object] = {}
-    with writer:
-        for i in idx:
-            for topic, mtype, msg in _messages_for_frame(ts, seq, i, compressed, ros1):
-                if topic not in conns:
-                    conns[topic] = writer.add_connection(topic, mtype, typestore=ts)
-                writer.write(conns[topic], int(round(float(seq.stamps[i]) * 1e9)), serialize(msg, mtype))
-    return len(idx)
+    written = 0
+    try:
+        with writer:  # on an exception rosbags aborts: a ROS 2 bag without metadata.yaml, which nothing reads
+            for i in idx:
+                try:
+                    messages = _messages_for_frame(ts, seq, i, compressed, ros1)
+                except DatasetError as e:  # a truncated or missing image: the others are still a recording
+                    print(f"warning: frame {i}: skipped, {e}", file=sys.stderr)
+                    continue
+                for topic, mtype, msg in messages:
+                    if topic not in conns:
+                        conns[topic] = writer.add_connection(topic, mtype, typestore=ts)
+                    writer.write(conns[topic], int(round(float(seq.stamps[i]) * 1e9)), serialize(msg, mtype))
+                written += 1
+            if not written:
+                raise BagError(f"{seq.root}: none of the {len(idx)} frames could be read; no bag written")
+    except BaseException:  # Ctrl-C too: remove the partial output, so a rerun can write it
+        if out.is_dir():
+            shutil.rmtree(out, ignore_errors=True)
+        else:
+            out.unlink(missing_ok=True)
+        raise
+    return written
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

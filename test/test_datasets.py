@@ -287,7 +287,7 @@ def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_re
         Sequence.load(tmp_path)
 
 
-def test_a_missing_truncated_or_empty_image_is_named_not_read_in_part(tmp_path):
+def test_a_missing_truncated_or_empty_image_is_named_not_read_in_part(tmp_path, capsys):
     src = data_dir("strecha-fountain-p11")
     for name in ("camera.yaml", "images.txt", "groundtruth.txt"):
         shutil.copy(src / name, tmp_path / name)
@@ -301,6 +301,19 @@ def test_a_missing_truncated_or_empty_image_is_named_not_read_in_part(tmp_path):
     for i, said in ((1, "cannot decode image"), (2, r"cannot decode image \(0 bytes\)"), (3, "cannot read image: No such file")):
         with pytest.raises(DatasetError, match=f"{seq.paths[i].name}: {said}"):
             seq.image(i)
+    # make-bag stopped at frame 1 and left a ROS 2 bag without metadata.yaml (unreadable, and in a rerun's way):
+    # the frames it cannot read are skipped, named; with none readable, nothing is left behind
+    from nmnet_ros.bags import BagError, BagReader
+    from nmnet_ros.make_bag import TOPICS, make_bag
+
+    assert make_bag(tmp_path, tmp_path / "bag", "mcap", frames=range(0, 5)) == 2  # frames 0 and 4
+    said = capsys.readouterr().err
+    assert [f"warning: frame {i}: skipped, {seq.paths[i]}: cannot" in said for i in range(5)] == [False, True, True, True, False]
+    assert len(list(BagReader(tmp_path / "bag").messages({TOPICS["image"]}))) == 2
+    for fmt, out in (("mcap", tmp_path / "none"), ("ros1", tmp_path / "none.bag")):
+        with pytest.raises(BagError, match=f"{tmp_path}: none of the 3 frames could be read; no bag written"):
+            make_bag(tmp_path, out, fmt, frames=range(1, 4))
+        assert not out.exists()
 
 
 def test_missing_images_txt_and_bad_yaml(tmp_path):
