@@ -247,7 +247,11 @@ def main(args: argparse.Namespace) -> int:
     output_file(args.json, "--json", "eval.json")
     if args.plot is None:  # beside its numbers: evaluations into one folder keep each one's plot
         args.plot = args.json.with_suffix(".png") if args.json is not None else Path("eval_curves.png")
+        if args.plot == args.json:
+            raise ValueError(f"--json {args.json}: its .png name is where the plot goes; name it {args.json.stem}.json")
     output_file(args.plot, "--plot", "eval_curves.png")
+    if args.json is not None and args.plot.resolve() == args.json.resolve():
+        raise ValueError(f"--plot {args.plot} is also --json: give the plot its own file")  # it was written over the numbers
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
     for variant, path in weights.items():  # the other variant's network would be scored under this one's name
         if (kind := load_model(path).config["neighbors"]) != NEIGHBORS[variant]:

@@ -506,6 +506,12 @@ def test_eval_outputs_are_checked_before_the_evaluation_and_written_where_asked(
     afile.write_text("")
     bad = subprocess.run(cmd + ["--plot", str(afile / "c.png")], capture_output=True, text=True)  # under a file
     assert bad.returncode == 2 and str(afile) in bad.stderr and "pairs ready" not in bad.stderr, bad.stderr
+    numbers = out.read_text()  # the plot was written over the numbers when both named one file
+    for args, said in ((["--json", str(out), "--plot", str(out)], f"--plot {out} is also --json: give the plot its own"),
+                       (["--json", str(out.with_suffix(".png"))], "its .png name is where the plot goes; name it eval.json")):
+        bad = subprocess.run(cmd + args, capture_output=True, text=True)
+        assert bad.returncode == 2 and said in bad.stderr and "pairs ready" not in bad.stderr, bad.stderr
+    assert out.read_text() == numbers
 
 
 def test_pose_refinement_keeps_the_selection_and_lowers_the_robust_cost(pairs):
