@@ -32,13 +32,16 @@ KALIBR_DISTORTION = {"radtan": "plumb_bob", "radial-tangential": "plumb_bob", "p
 def read_camera_yaml(path: Path, topic: str | None = None) -> Camera:
     """A calibration file -> Camera: ROS camera_info YAML (camera_calibration_parsers' layout, a sequence folder's
     camera.yaml), Kalibr's camchain (its one camera, or the one whose ``rostopic`` is ``topic``) or EuRoC's
-    sensor.yaml (Kalibr's fields for one camera), so bags recorded without camera_info replay with the calibration
-    they came with."""
+    sensor.yaml (Kalibr's fields for one camera), or OpenCV's own YAML (its calibration sample's, ORB-SLAM's
+    settings), so bags recorded without camera_info replay with the calibration they came with."""
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: missing; a sequence folder needs camera.yaml (ROS camera_info YAML)")
     try:
-        d = yaml.safe_load(path.read_text())
+        text = path.read_text()
+        if text.lstrip().startswith("%YAML:") or "!!opencv-matrix" in text:  # OpenCV's YAML: PyYAML cannot read it
+            return _opencv_camera(path)
+        d = yaml.safe_load(text)
         if isinstance(d, dict) and "camera_matrix" in d:
             K = np.array(d["camera_matrix"]["data"], np.float64).reshape(3, 3)
             dist = np.array(d.get("distortion_coefficients", {}).get("data", []) or [], np.float64)
@@ -49,8 +52,8 @@ def read_camera_yaml(path: Path, topic: str | None = None) -> Camera:
         cams = {k: v for k, v in d.items() if isinstance(v, dict) and "intrinsics" in v} if isinstance(d, dict) else {}
         if not cams:
             raise DatasetError(f"{path}: not a camera calibration; expected a ROS camera_info YAML (camera_matrix, "
-                               "distortion_coefficients, ...), a Kalibr camchain (cam0: intrinsics, ...) or a EuRoC "
-                               "sensor.yaml")
+                               "distortion_coefficients, ...), a Kalibr camchain (cam0: intrinsics, ...), a EuRoC "
+                               "sensor.yaml or an OpenCV YAML ('%YAML:1.0': camera_matrix, or ORB-SLAM's Camera.fx, ...)")
         on_topic = [k for k, v in cams.items() if topic is not None and v.get("rostopic") == topic]
         if len(cams) > 1 and len(on_topic) != 1:
             listed = ", ".join(f"{k} ({v.get('rostopic', 'no rostopic')})" for k, v in cams.items())
@@ -63,6 +66,42 @@ def read_camera_yaml(path: Path, topic: str | None = None) -> Camera:
         raise DatasetError(f"{path}: {e}") from e
     except (KeyError, TypeError, ValueError, yaml.YAMLError) as e:  # a missing field, a wrong count, words for numbers
         raise DatasetError(f"{path}: malformed camera YAML ({type(e).__name__}: {e})") from e
+
+
+def _opencv_camera(path: Path) -> Camera:
+    """OpenCV's FileStorage YAML ('%YAML:1.0', or matrices tagged !!opencv-matrix; read with cv2.FileStorage): its
+    calibration's ``camera_matrix`` and ``distortion_coefficients``, or ORB-SLAM2/3's settings (``Camera.fx`` or
+    ``Camera1.fx``, ..., ``Camera.type`` PinHole with k1 k2 p1 p2 [k3], KannalaBrandt8 with k1..k4)."""
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as e:  # OpenCV's parser error comes as a SystemError from the constructor
+        raise DatasetError(f"{path}: malformed OpenCV YAML ({str(e.__cause__ or e).strip().splitlines()[-1]})") from e
+
+    def number(*names: str) -> float | None:
+        node = next((fs.getNode(n) for n in names if not fs.getNode(n).empty()), None)
+        return None if node is None else node.real()
+
+    size = [int(number(f"image_{side}", f"Camera.{side}") or 0) for side in ("width", "height")]
+    if not fs.getNode("camera_matrix").empty():
+        K = fs.getNode("camera_matrix").mat()
+        dist = fs.getNode("distortion_coefficients").mat()
+        dist = np.zeros(0) if dist is None else dist.ravel()
+        return Camera(K, dist, *size, "rational_polynomial" if dist.size > 5 else "plumb_bob")
+    cam = next((p for p in ("Camera1.", "Camera.") if not fs.getNode(p + "fx").empty()), None)
+    if cam is None:
+        raise DatasetError(f"{path}: an OpenCV YAML without a camera; expected camera_matrix and "
+                           "distortion_coefficients (OpenCV's calibration), or Camera.fx, ... (ORB-SLAM's settings)")
+    fx, fy, cx, cy = intrinsics = [number(cam + k) for k in ("fx", "fy", "cx", "cy")]
+    if None in intrinsics:
+        raise DatasetError(f"{path}: {cam}{('fx', 'fy', 'cx', 'cy')[intrinsics.index(None)]} missing")
+    kind = fs.getNode("Camera.type").string() or "PinHole"
+    if kind not in ("PinHole", "KannalaBrandt8", "Rectified"):
+        raise DatasetError(f"{path}: Camera.type {kind!r} is not supported; PinHole, KannalaBrandt8 or Rectified")
+    names = ("k1", "k2", "k3", "k4") if kind == "KannalaBrandt8" else ("k1", "k2", "p1", "p2", "k3")
+    dist = [number(cam + k) for k in names]
+    dist = [v or 0.0 for v in dist[: 5 if dist[4:] and dist[4] is not None else 4]]
+    return Camera(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]]), np.array(dist), *size,
+                  "equidistant" if kind == "KannalaBrandt8" else "plumb_bob")
 
 
 def _kalibr_camera(d: dict) -> Camera:

@@ -429,8 +429,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rectified", action="store_true", help="the bag's images are rectified (image_rect): use camera_info's "
                    "P, without distortion")
     p.add_argument("--camera", type=Path, default=None, help="calibration as a ROS camera_info YAML (what camera_calibration "
-                   "writes), a Kalibr camchain (the camera whose rostopic is the image topic) or a EuRoC sensor.yaml, for "
-                   "a bag without camera_info or to use instead of it")
+                   "writes), a Kalibr camchain (the camera whose rostopic is the image topic), a EuRoC sensor.yaml or an "
+                   "OpenCV YAML (its calibration's camera_matrix, or ORB-SLAM's settings), for a bag without camera_info "
+                   "or to use instead of it")
     p.add_argument("--params-file", type=Path, default=None, metavar="YAML",
                    help="the node's parameters file (config/nmnet.yaml's form): replay with the settings the node runs; "
                         "the options below, when given, override it")

@@ -405,6 +405,57 @@ def test_kalibr_camchain_and_euroc_sensor_yaml_read_as_the_camera_info_yaml(tmp_
             read_camera_yaml(bad)
 
 
+ORB_SLAM_SETTINGS = """%YAML:1.0
+Camera.type: "PinHole"
+Camera.fx: 458.654
+Camera.fy: 457.296
+Camera.cx: 367.215
+Camera.cy: 248.375
+Camera.k1: -0.28340811
+Camera.k2: 0.07395907
+Camera.p1: 0.00019359
+Camera.p2: 1.76187114e-05
+Camera.width: 752
+Camera.height: 480
+Camera.fps: 20.0
+"""
+
+
+def test_opencv_yaml_calibrations_read_as_the_camera_info_yaml(tmp_path):
+    """OpenCV's own YAML ('%YAML:1.0', which PyYAML cannot parse: "malformed camera YAML (ScannerError ...)") as its
+    calibration writes it (cv2.FileStorage, camera_matrix / distortion_coefficients) and as ORB-SLAM2/3's settings
+    give the camera the ROS camera_info YAML of the same calibration gives; ORB-SLAM3's fisheye too."""
+    import cv2
+
+    from nmnet_ros.datasets import read_camera_yaml
+
+    ros = read_camera_yaml(data_dir("euroc-v101-cam0") / "camera.yaml")
+    fs = cv2.FileStorage(str(tmp_path / "calib.yaml"), cv2.FILE_STORAGE_WRITE)
+    for key, value in (("image_width", 752), ("image_height", 480), ("camera_matrix", ros.K),
+                       ("distortion_coefficients", ros.dist.reshape(1, -1))):
+        fs.write(key, value)
+    fs.release()
+    (tmp_path / "orb.yaml").write_text(ORB_SLAM_SETTINGS)
+    pts = np.random.default_rng(0).uniform([0, 0], [752, 480], (50, 2))
+    for name in ("calib.yaml", "orb.yaml"):
+        cam = read_camera_yaml(tmp_path / name)
+        assert (cam.width, cam.height, cam.model) == (752, 480, "plumb_bob") and np.allclose(cam.K, ros.K), name
+        assert np.allclose(cam.normalize(pts), ros.normalize(pts), atol=1e-12), name
+    fisheye = ORB_SLAM_SETTINGS.replace("PinHole", "KannalaBrandt8").replace("Camera.p1", "Camera.k3").replace(
+        "Camera.p2", "Camera.k4").replace("Camera.", "Camera1.").replace("Camera1.type", "Camera.type").replace(
+        "Camera1.width", "Camera.width").replace("Camera1.height", "Camera.height")  # ORB-SLAM3's names
+    (tmp_path / "kb.yaml").write_text(fisheye)
+    cam = read_camera_yaml(tmp_path / "kb.yaml")
+    assert cam.model == "equidistant" and cam.dist.tolist() == [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+    for edit, says in ((("PinHole", "Fisheye"), "Camera.type 'Fisheye' is not supported"),
+                       (("Camera.fy: 457.296\n", ""), "Camera.fy missing"),
+                       (("Camera.", "Cam."), "an OpenCV YAML without a camera"),
+                       (("Camera.fps: 20.0", ": ["), "malformed OpenCV YAML")):
+        (tmp_path / "bad.yaml").write_text(ORB_SLAM_SETTINGS.replace(*edit))
+        with pytest.raises(DatasetError, match=f"bad.yaml: {says}"):
+            read_camera_yaml(tmp_path / "bad.yaml")
+
+
 def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
     """images.txt, pairs.txt and groundtruth.txt (also `nmnet replay --gt`) name the file, the line and its columns."""
     from nmnet_ros.datasets import read_tum
