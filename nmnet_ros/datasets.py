@@ -331,6 +331,13 @@ def _other_layout(root: Path) -> str | None:
     if any(root.glob("H_1_to_*")):
         return ("H_1_to_N files: a homography benchmark (Oxford affine regions, HPatches), which has no camera poses; "
                 "nmnet eval and train score relative poses: they need camera.yaml and groundtruth.txt")
+    asl = next((d for d in (root / "mav0" / "cam0", root / "cam0", root) if (d / "data.csv").is_file()
+                and (d / "data").is_dir()), None)
+    if asl is not None:
+        return (f"{asl / 'data.csv'}: EuRoC's ASL layout, which nmnet eval and train do not read (their folders: "
+                "camera.yaml, images.txt with stamps in seconds, groundtruth.txt of the camera's poses); its .bag "
+                "replays as it is: nmnet replay V1_01_easy.bag --image-topic /cam0/image_raw --camera "
+                "mav0/cam0/sensor.yaml --gt-camera 'X Y Z QX QY QZ QW' (cam0's place on the body: the README)")
     if (root / "rgb.txt").is_file():
         return ("rgb.txt: a TUM RGB-D sequence, read as it is (rgb.txt for images.txt, its groundtruth.txt) once "
                 "camera.yaml holds its camera's calibration (ROS camera_info YAML: the K and D TUM lists for "

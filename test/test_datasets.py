@@ -244,6 +244,13 @@ def test_a_tum_rgbd_folder_reads_as_it_is_and_other_benchmarks_are_named(tmp_pat
     (boat / "H_1_to_2p").write_text("1 0 0\n0 1 0\n0 0 1\n")
     with pytest.raises(DatasetError, match="H_1_to_N files: a homography benchmark .* no camera poses"):
         Sequence.load(boat)
+    cam0 = tmp_path / "V1_01_easy" / "mav0" / "cam0"  # EuRoC's ASL download: said, with the way its bag replays
+    (cam0 / "data").mkdir(parents=True)
+    (cam0 / "data.csv").write_text("#timestamp [ns],filename\n1403715273262142976,1403715273262142976.png\n")
+    for folder in (cam0.parent.parent, cam0.parent, cam0):
+        with pytest.raises(DatasetError, match=f"{folder / 'camera.yaml'}: missing; {cam0 / 'data.csv'}: EuRoC's ASL "
+                                               "layout, .* its .bag replays as it is: nmnet replay"):
+            Sequence.load(folder)
 
 
 def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_refused(tmp_path, capsys):
