@@ -101,6 +101,11 @@ def weights_dir() -> Path:
 def load_model(path: str | Path | None = None, variant: str = "nmnet") -> NMNet:
     """Build NM-Net and load weights (default: the shipped ones for ``variant``), eval mode."""
     path = Path(path) if path is not None else weights_dir() / f"{variant}.pt"
+    if path.is_dir():  # a training run's folder (nmnet train --out) rather than its checkpoint
+        inside = [p.name for p in sorted(path.glob("*.pt"))]
+        hint = f"give {path / 'best.pt'}, the run's chosen weights" if "best.pt" in inside else (
+            f"give one of its checkpoints ({', '.join(inside)})" if inside else "it holds no checkpoint (.pt)")
+        raise WeightsError(f"{path}: a folder, not a weights file; {hint}")
     if not path.is_file():
         raise WeightsError(f"{path}: weights file not found")
     try:

@@ -1,6 +1,7 @@
 """NM-Net network: size, order-insensitivity, determinism, sizes, bad weights."""
 
 import copy
+import shutil
 
 import numpy as np
 import pytest
@@ -63,6 +64,16 @@ def test_bad_weight_files_name_the_file(tmp_path):
     torch.save({"state_dict": small.state_dict()}, wrong)  # no config: shapes do not fit the default net
     with pytest.raises(WeightsError, match="wrong.pt.*do not fit"):
         load_model(wrong)
+    run = tmp_path / "run"  # nmnet train --out's folder given for its weights (was "weights file not found")
+    run.mkdir()
+    with pytest.raises(WeightsError, match=f"^{run}: a folder, not a weights file; it holds no checkpoint"):
+        load_model(run)
+    shutil.copy(garbage, run / "last.pt")
+    with pytest.raises(WeightsError, match=r"give one of its checkpoints \(last.pt\)"):
+        load_model(run)
+    shutil.copy(garbage, run / "best.pt")
+    with pytest.raises(WeightsError, match=f"a folder, not a weights file; give {run / 'best.pt'}, the run's chosen"):
+        load_model(run)
 
 
 @pytest.mark.parametrize("variant", ["nmnet", "nmnet-sp"])
