@@ -467,6 +467,9 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     val_pairs = load_pairs(val_specs, cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"])
     if not train_pairs:
         raise ValueError("no training pairs: check the sequence folders and frame ranges")
+    if not val_pairs:  # trained, then failed with '[Errno 2] best.pt' at the end of the first epoch (val F nan)
+        raise ValueError("no validation pairs: check the --val folders and frame ranges (validation picks best.pt "
+                         "and calibrates the score threshold)")
     weights = pair_weights([len(g) for g in groups], c["balance"])
     if len(val_pairs) > c["max_val_pairs"]:
         val_pairs = [val_pairs[i] for i in np.linspace(0, len(val_pairs) - 1, c["max_val_pairs"]).round().astype(int)]

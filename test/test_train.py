@@ -489,6 +489,17 @@ def test_no_training_pairs_is_a_clear_error(tmp_path, balance):
     assert not (tmp_path / "out").exists()
 
 
+def test_no_validation_pairs_is_a_clear_error_before_training(tmp_path):
+    """--val without pairs (EuRoC's standing excerpt) trained an epoch on 'val F nan', then failed with
+    '[Errno 2] No such file or directory: best.pt'."""
+    seq, euroc = str(data_dir("strecha-fountain-p11")), str(data_dir("euroc-v101-cam0"))
+    said: list[str] = []
+    with pytest.raises(ValueError, match=r"no validation pairs: check the --val folders and frame ranges"):
+        train([f"{seq}:0-2"], [euroc], tmp_path / "out", {"gaps": (1,), "detector": "sift"}, cache_dir=tmp_path / "cache",
+              log=said.append)
+    assert not (tmp_path / "out").exists() and any("none of its 94 frame pairs" in line for line in said), said
+
+
 def test_ratio_input_fine_tune_starts_as_the_checkpoint_and_is_kept(tmp_path):
     """--ratio-input from weights trained without it: a zero column, so the same logits at the start."""
     from nmnet_ros.pairs import to_correspondences
