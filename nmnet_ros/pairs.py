@@ -59,8 +59,11 @@ def view_angle_deg(seq: Sequence, i: int, j: int) -> float:
     return float(np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0))))
 
 
+MAX_VIEW_ANGLE_DEG = 40.0  # a pair's cameras turned further apart share too little of the scene to label
+
+
 def select_pairs(seq: Sequence, gaps: tuple[int, ...], frames: range | None = None,
-                 max_view_angle: float = 40.0) -> list[tuple[int, int]]:
+                 max_view_angle: float = MAX_VIEW_ANGLE_DEG) -> list[tuple[int, int]]:
     """Pairs by frame gap (or pairs.txt) that have a baseline and are co-visible.
 
     Pairs without translation (a static camera) have no epipolar geometry to label against
@@ -81,7 +84,7 @@ def no_pairs_reason(seq: Sequence, spec: str, gaps: tuple[int, ...], frames: ran
     if not n:
         return f"{spec}: its frames make no pairs ({by})"
     return (f"{spec}: none of its {n} frame pairs ({by}) has a ground-truth pose on both frames, motion between them "
-            "(epipolar labels need a baseline) and views within 40 degrees")
+            f"(epipolar labels need a baseline) and views within {MAX_VIEW_ANGLE_DEG:g} degrees")
 
 
 def make_pair(seq: Sequence, i: int, j: int, cache: FeatureCache, match_config: dict | None = None,
