@@ -463,10 +463,10 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     log("loading training pairs")
     groups = [load_pairs([spec], cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"]) for spec in train_specs]
     train_pairs = [p for g in groups for p in g]
+    if not train_pairs:  # before the validation folders' features
+        raise ValueError("no training pairs: check the sequence folders and frame ranges")
     log("loading validation pairs")
     val_pairs = load_pairs(val_specs, cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"])
-    if not train_pairs:
-        raise ValueError("no training pairs: check the sequence folders and frame ranges")
     if not val_pairs:  # trained, then failed with '[Errno 2] best.pt' at the end of the first epoch (val F nan)
         raise ValueError("no validation pairs: check the --val folders and frame ranges (validation picks best.pt "
                          "and calibrates the score threshold)")

@@ -484,9 +484,12 @@ def test_a_folder_whose_pairs_all_lack_motion_says_why_it_gives_none(tmp_path):
 @pytest.mark.parametrize("balance", [0.0, 1.0])
 def test_no_training_pairs_is_a_clear_error(tmp_path, balance):
     seq = str(data_dir("strecha-fountain-p11"))
+    said: list[str] = []
     with pytest.raises(ValueError, match="no training pairs: check the sequence folders and frame ranges"):
-        train([f"{seq}:0-0"], [f"{seq}:1-2"], tmp_path / "out", {"balance": balance, "gaps": (1,)}, cache_dir=tmp_path / "cache")
+        train([f"{seq}:0-0"], [f"{seq}:1-2"], tmp_path / "out", {"balance": balance, "gaps": (1,)},
+              cache_dir=tmp_path / "cache", log=said.append)
     assert not (tmp_path / "out").exists()
+    assert "loading validation pairs" not in said and not (tmp_path / "cache").exists(), said  # no features for --val
 
 
 def test_no_validation_pairs_is_a_clear_error_before_training(tmp_path):
