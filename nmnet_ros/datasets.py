@@ -78,7 +78,8 @@ def _opencv_camera(path: Path) -> Camera:
         raise DatasetError(f"{path}: malformed OpenCV YAML ({str(e.__cause__ or e).strip().splitlines()[-1]})") from e
 
     def number(*names: str) -> float | None:
-        node = next((fs.getNode(n) for n in names if not fs.getNode(n).empty()), None)
+        """The first of ``names`` the file has, as a number (None: none of them)."""
+        node = next((node for node in map(fs.getNode, names) if not node.empty()), None)
         return None if node is None else node.real()
 
     size = [int(number(f"image_{side}", f"Camera.{side}") or 0) for side in ("width", "height")]
@@ -98,8 +99,9 @@ def _opencv_camera(path: Path) -> Camera:
     if kind not in ("PinHole", "KannalaBrandt8", "Rectified"):
         raise DatasetError(f"{path}: Camera.type {kind!r} is not supported; PinHole, KannalaBrandt8 or Rectified")
     names = ("k1", "k2", "k3", "k4") if kind == "KannalaBrandt8" else ("k1", "k2", "p1", "p2", "k3")
-    dist = [number(cam + k) for k in names]
-    dist = [v or 0.0 for v in dist[: 5 if dist[4:] and dist[4] is not None else 4]]
+    dist = [number(cam + k) or 0.0 for k in names]
+    if kind != "KannalaBrandt8" and number(cam + "k3") is None:
+        dist = dist[:4]  # ORB-SLAM's k3 is optional: k1 k2 p1 p2, as OpenCV takes 4 coefficients
     return Camera(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]]), np.array(dist), *size,
                   "equidistant" if kind == "KannalaBrandt8" else "plumb_bob")
 

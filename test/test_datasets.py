@@ -454,6 +454,8 @@ def test_opencv_yaml_calibrations_read_as_the_camera_info_yaml(tmp_path):
     (tmp_path / "kb.yaml").write_text(fisheye)
     cam = read_camera_yaml(tmp_path / "kb.yaml")
     assert cam.model == "equidistant" and cam.dist.tolist() == [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+    (tmp_path / "k3.yaml").write_text(ORB_SLAM_SETTINGS + "Camera.k3: 0.001\n")  # ORB-SLAM's optional fifth
+    assert read_camera_yaml(tmp_path / "k3.yaml").dist.tolist()[4:] == [0.001]
     for edit, says in ((("PinHole", "Fisheye"), "Camera.type 'Fisheye' is not supported"),
                        (("Camera.fy: 457.296\n", ""), "Camera.fy missing"),
                        (("Camera.", "Cam."), "an OpenCV YAML without a camera"),
