@@ -779,6 +779,14 @@ def test_weights_without_a_calibrated_cut_are_said_in_the_nodes_log(ros, tmp_pat
     assert "no calibrated score threshold" in node.output(), node.output()
     line = next(ln for ln in node.output().splitlines() if "no calibrated score threshold" in ln)
     assert line.startswith("[WARN]") and "[nmnet_node]" in line and "UserWarning" not in node.output()
+    # the same weights set on a running node (`ros2 param set weights ...`): taken, and said in the log likewise
+    with node_and_peer(ros, tmp_path, ["--ros-args"]) as (node, peer):
+        assert all(r.successful for r in set_params(peer, {"weights": str(tmp_path / "last.pt")}))
+        end = time.monotonic() + 30
+        while "no calibrated score threshold" not in node.output() and time.monotonic() < end:
+            time.sleep(0.2)
+    lines = [ln for ln in node.output().splitlines() if "no calibrated score threshold" in ln]
+    assert len(lines) == 1 and lines[0].startswith("[WARN]") and "UserWarning" not in node.output(), node.output()
 
 
 def rss_mb(pid: int) -> float:
