@@ -123,8 +123,10 @@ def _kalibr_camera(d: dict) -> Camera:
                   KALIBR_DISTORTION[name])
 
 
-def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row]) -> list[Row]:
+def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row], maxsplit: int = -1) -> list[Row]:
     """The rows of a whitespace-separated text file (blank and '#' lines skipped), each converted.
+
+    ``maxsplit`` keeps the last column whole (a path with spaces in 'timestamp path').
 
     ``convert`` raises ValueError (or IndexError) on a malformed row; the DatasetError then names the
     file, the line and the ``columns`` it should have.
@@ -136,7 +138,7 @@ def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row]) -
     for n, line in enumerate(path.read_text().splitlines(), 1):
         if line.strip() and not line.lstrip().startswith("#"):
             try:
-                rows.append(convert(line.split()))
+                rows.append(convert(line.split(None, maxsplit)))
             except Unfit as e:
                 raise DatasetError(f"{path}:{n}: {e} in '{columns}', got {line.strip()!r}") from e
             except (ValueError, IndexError) as e:
@@ -384,7 +386,7 @@ class Sequence:
         listing = root / "images.txt"
         if not listing.is_file() and (root / "rgb.txt").is_file():
             listing = root / "rgb.txt"  # a TUM RGB-D sequence: the same 'timestamp path' lines
-        rows = _read_table(listing, "timestamp path", lambda r: (float(r[0]), root / r[1]))
+        rows = _read_table(listing, "timestamp path", lambda r: (float(r[0]), root / r[1].strip()), maxsplit=1)
         if not rows:
             raise DatasetError(f"{listing}: no frames listed")
         stamps = np.array([stamp for stamp, _ in rows])

@@ -1,6 +1,7 @@
 """Sequence folder reader: real folders, pairs.txt, bad folders with clear errors."""
 
 import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -124,6 +125,20 @@ def test_pairs_txt_is_honoured(tmp_path):
     (dst / "pairs.txt").write_text("0 99\n")
     with pytest.raises(DatasetError, match="pairs.txt.*out of range"):
         Sequence.load(dst)
+
+
+def test_image_paths_with_spaces_are_read_whole(tmp_path):
+    """images.txt is 'timestamp path': a path with a space (a folder named 'cam 0', a camera's file names) was cut at
+    the space and read as a missing image."""
+    src = data_dir("strecha-entry-p10")
+    for name in ("camera.yaml", "groundtruth.txt"):
+        shutil.copy(src / name, tmp_path / name)
+    shutil.copytree(src / "images", tmp_path / "cam 0")
+    lines = [line.split() for line in (src / "images.txt").read_text().splitlines() if line and line[0] != "#"]
+    (tmp_path / "images.txt").write_text("".join(f"{t}  cam 0/{Path(p).name} \n" for t, p in lines))
+    seq = Sequence.load(tmp_path)
+    assert [p.name for p in seq.paths] == [Path(p).name for _, p in lines]
+    assert seq.paths[0].parent.name == "cam 0" and seq.image(0).shape == Sequence.load(src).image(0).shape
 
 
 def test_ground_truth_with_other_stamps_than_the_images_gives_each_image_its_nearest_pose(tmp_path):
