@@ -123,8 +123,10 @@ def _kalibr_camera(d: dict) -> Camera:
                   KALIBR_DISTORTION[name])
 
 
-def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row], maxsplit: int = -1) -> list[Row]:
-    """The rows of a whitespace-separated text file (blank and '#' lines skipped), each converted.
+def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row], maxsplit: int = -1,
+                sep: str | None = None) -> list[Row]:
+    """The rows of a whitespace-separated (or ``sep``-separated) text file (blank and '#' lines skipped), each
+    converted.
 
     ``maxsplit`` keeps the last column whole (a path with spaces in 'timestamp path').
 
@@ -138,11 +140,12 @@ def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row], m
     for n, line in enumerate(path.read_text().splitlines(), 1):
         if line.strip() and not line.lstrip().startswith("#"):
             try:
-                rows.append(convert(line.split(None, maxsplit)))
+                rows.append(convert(line.split(sep, maxsplit)))
             except Unfit as e:
                 raise DatasetError(f"{path}:{n}: {e} in '{columns}', got {line.strip()!r}") from e
             except (ValueError, IndexError) as e:
-                raise DatasetError(f"{path}:{n}: expected '{columns}', got {line.strip()!r}{_layout_hint(line)}") from e
+                hint = _layout_hint(line) if sep is None else ""
+                raise DatasetError(f"{path}:{n}: expected '{columns}', got {line.strip()!r}{hint}") from e
     return rows
 
 
@@ -318,15 +321,15 @@ def between(T0: np.ndarray, T1: np.ndarray, w: float) -> np.ndarray:
     return T
 
 
-def _poses_at(gt: Trajectory, stamps: np.ndarray, root: Path) -> np.ndarray:
+def _poses_at(gt: Trajectory, stamps: np.ndarray, source: Path, listing: Path) -> np.ndarray:
     """Each image's pose by its stamp (:meth:`Trajectory.poses_at`), NaN where the ground truth has none: a file that
     does not cover every image (a tracker that lost the camera) leaves those frames out, instead of giving them
-    a pose of another time."""
+    a pose of another time. ``source`` and ``listing`` are the files of the poses and of the images' stamps."""
     poses = gt.poses_at(stamps)
     if np.isnan(poses[:, 0, 0]).all():
-        raise DatasetError(f"{root / 'groundtruth.txt'}: no pose at any image's stamp (stamps {gt.stamps[0]:.6f} .. "
+        raise DatasetError(f"{source}: no pose at any image's stamp (stamps {gt.stamps[0]:.6f} .. "
                            f"{gt.stamps[-1]:.6f}, images {stamps.min():.6f} .. {stamps.max():.6f}); its timestamps must be "
-                           "those of images.txt")
+                           f"those of {listing.name}")
     return poses
 
 
@@ -335,13 +338,6 @@ def _other_layout(root: Path) -> str | None:
     if any(root.glob("H_1_to_*")):
         return ("H_1_to_N files: a homography benchmark (Oxford affine regions, HPatches), which has no camera poses; "
                 "nmnet eval and train score relative poses: they need camera.yaml and groundtruth.txt")
-    asl = next((d for d in (root / "mav0" / "cam0", root / "cam0", root) if (d / "data.csv").is_file()
-                and (d / "data").is_dir()), None)
-    if asl is not None:
-        return (f"{asl / 'data.csv'}: EuRoC's ASL layout, which nmnet eval and train do not read (their folders: "
-                "camera.yaml, images.txt with stamps in seconds, groundtruth.txt of the camera's poses); its .bag "
-                "replays as it is: nmnet replay V1_01_easy.bag --image-topic /cam0/image_raw --camera "
-                "mav0/cam0/sensor.yaml --gt-camera 'X Y Z QX QY QZ QW' (cam0's place on the body: the README)")
     if (root / "rgb.txt").is_file():
         return ("rgb.txt: a TUM RGB-D sequence, read as it is (rgb.txt for images.txt, its groundtruth.txt) once "
                 "camera.yaml holds its camera's calibration (ROS camera_info YAML: the K and D TUM lists for "
@@ -372,6 +368,8 @@ class Sequence:
     paths: list[Path]
     poses: np.ndarray | None  # (N,4,4) T_WC; NaN for a frame groundtruth.txt has no pose for
     pairs_file: list[tuple[int, int]] | None
+    calibration: Path  # camera.yaml (an ASL folder: its camera's sensor.yaml), named in messages
+    truth_file: Path  # groundtruth.txt (an ASL folder: the body's ground truth), named in messages
     size_note: str | None = None  # camera.yaml's K scaled to the images (a resized copy of a dataset)
 
     @classmethod
@@ -380,8 +378,13 @@ class Sequence:
         root = Path(root)
         if not root.is_dir():
             raise DatasetError(f"{root}: not a directory")
-        if not (root / "camera.yaml").is_file() and (hint := _other_layout(root)):
-            raise DatasetError(f"{root / 'camera.yaml'}: missing; {hint}")
+        if not (root / "camera.yaml").is_file():
+            from .asl import camera_folder  # here: asl reads its files with this module's readers
+
+            if (cam := camera_folder(root)) is not None:
+                return cls._load_asl(root, cam)
+            if hint := _other_layout(root):
+                raise DatasetError(f"{root / 'camera.yaml'}: missing; {hint}")
         camera = read_camera_yaml(root / "camera.yaml")
         listing = root / "images.txt"
         if not listing.is_file() and (root / "rgb.txt").is_file():
@@ -394,14 +397,28 @@ class Sequence:
         paths = [path for _, path in rows]
         poses = None
         if (root / "groundtruth.txt").is_file():
-            poses = _poses_at(read_tum(root / "groundtruth.txt"), stamps, root)
+            poses = _poses_at(read_tum(root / "groundtruth.txt"), stamps, root / "groundtruth.txt", listing)
         pairs = None
         if (root / "pairs.txt").is_file():
             pairs = _read_table(root / "pairs.txt", "i j", lambda r: (int(r[0]), int(r[1])))
             bad = [p for p in pairs if not (0 <= p[0] < len(paths) and 0 <= p[1] < len(paths))]
             if bad:
                 raise DatasetError(f"{root / 'pairs.txt'}: pair indices out of range: {bad[:3]}")
-        seq = cls(root, camera, stamps, paths, poses, pairs)
+        seq = cls(root, camera, stamps, paths, poses, pairs, root / "camera.yaml", root / "groundtruth.txt")
+        seq._fit_camera()
+        return seq
+
+    @classmethod
+    def _load_asl(cls, root: Path, cam: Path) -> Sequence:
+        """A folder in EuRoC's ASL layout (:mod:`nmnet_ros.asl`), its camera folder ``cam``."""
+        from . import asl
+
+        camera = read_camera_yaml(cam / "sensor.yaml")
+        stamps, paths = asl.read_frames(cam)
+        truth = asl.read_ground_truth(cam.parent, cam / "sensor.yaml")
+        truth_file = cam.parent / asl.GROUND_TRUTH
+        poses = None if truth is None else _poses_at(truth, stamps, truth_file, cam / "data.csv")
+        seq = cls(root, camera, stamps, paths, poses, None, cam / "sensor.yaml", truth_file)
         seq._fit_camera()
         return seq
 
@@ -415,13 +432,13 @@ class Sequence:
             return  # named where the frame is used
         cam = self.camera
         fitted, _ = fit_camera(cam, (w, h))
-        said = f"{self.root / 'camera.yaml'} describes {cam.width}x{cam.height} frames but {self.paths[0].name} is {w}x{h}"
+        said = f"{self.calibration} describes {cam.width}x{cam.height} frames but {self.paths[0].name} is {w}x{h}"
         if fitted is None:
             raise DatasetError(f"{said}, which is not the same image scaled (cropped images, another camera's "
-                               "calibration?): give the folder the camera.yaml of these images")
+                               f"calibration?): give the folder the {self.calibration.name} of these images")
         if fitted is not cam:
             self.camera = fitted
-            self.size_note = f"{said}: K scaled by {w / cam.width:.4g} to fit (a camera.yaml of these images silences this)"
+            self.size_note = f"{said}: K scaled by {w / cam.width:.4g} to fit (a {self.calibration.name} of these images silences this)"
 
     @property
     def name(self) -> str:
@@ -436,7 +453,7 @@ class Sequence:
         (h, w), cam = img.shape[:2], self.camera
         if cam.width > 0 and (w, h) != (cam.width, cam.height):
             raise DatasetError(f"{self.paths[i]}: {w}x{h}, but the folder's frames are {cam.width}x{cam.height} "
-                               f"({'as its first image' if self.size_note else 'as camera.yaml says'}): every frame "
+                               f"({'as its first image' if self.size_note else f'as {self.calibration.name} says'}): every frame "
                                "of a sequence folder must be one size")
         return img
 
@@ -467,17 +484,17 @@ class Sequence:
         if not len(missing):
             return None
         listed = ", ".join(map(str, missing[:5])) + (", ..." if len(missing) > 5 else "")
-        return (f"{self.root / 'groundtruth.txt'}: {len(missing)} of {len(self)} frames have no pose (none between two "
+        return (f"{self.truth_file}: {len(missing)} of {len(self)} frames have no pose (none between two "
                 f"of the file's poses nor within half its spacing of one; frames {listed}); "
                 f"{consequence}")
 
     def relative_pose(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """(R, t) of frame i in frame j: x_j = R x_i + t."""
         if self.poses is None:
-            raise DatasetError(f"{self.root}: no groundtruth.txt, so no ground-truth pose")
+            raise DatasetError(f"{self.truth_file}: missing, so no ground-truth pose")
         for k in (i, j):
             if not self.has_pose(k):
-                raise DatasetError(f"{self.root / 'groundtruth.txt'}: no pose for frame {k} ({self.paths[k].name})")
+                raise DatasetError(f"{self.truth_file}: no pose for frame {k} ({self.paths[k].name})")
         return relative_pose(self.poses[i], self.poses[j])
 
     def frames(self, frames: range | None = None) -> range:

@@ -6,6 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from nmnet_ros.datasets import DatasetError, Sequence, has_baseline
 from nmnet_ros.pairs import select_pairs
@@ -259,13 +260,54 @@ def test_a_tum_rgbd_folder_reads_as_it_is_and_other_benchmarks_are_named(tmp_pat
     (boat / "H_1_to_2p").write_text("1 0 0\n0 1 0\n0 0 1\n")
     with pytest.raises(DatasetError, match="H_1_to_N files: a homography benchmark .* no camera poses"):
         Sequence.load(boat)
-    cam0 = tmp_path / "V1_01_easy" / "mav0" / "cam0"  # EuRoC's ASL download: said, with the way its bag replays
+
+
+def test_a_euroc_asl_download_reads_as_it_is(tmp_path):
+    """EuRoC's ASL layout (mav0/cam0/data.csv stamped in ns, sensor.yaml, the body's ground truth with qw first) reads
+    as it is, the camera's poses those of the body composed with the camera's T_BS: it was only named, with its bag's
+    replay. Built here from the shipped EuRoC excerpt, whose camera poses are the body's composed with T_BS."""
+    from nmnet_ros.posemsg import rot_to_quat
+
+    src = Sequence.load(data_dir("euroc-v101-cam0"))
+    mav = tmp_path / "V1_01_easy" / "mav0"
+    cam0 = mav / "cam0"
     (cam0 / "data").mkdir(parents=True)
-    (cam0 / "data.csv").write_text("#timestamp [ns],filename\n1403715273262142976,1403715273262142976.png\n")
-    for folder in (cam0.parent.parent, cam0.parent, cam0):
-        with pytest.raises(DatasetError, match=f"{folder / 'camera.yaml'}: missing; {cam0 / 'data.csv'}: EuRoC's ASL "
-                                               "layout, .* its .bag replays as it is: nmnet replay"):
-            Sequence.load(folder)
+    (cam0 / "sensor.yaml").write_text(EUROC_SENSOR_YAML)
+    T_BS = np.array(yaml.safe_load(EUROC_SENSOR_YAML)["T_BS"]["data"]).reshape(4, 4)
+    listing, truth = ["#timestamp [ns],filename"], ["#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [],"
+                                                    " q_RS_x [], q_RS_y [], q_RS_z [], v_RS_R_x [m s^-1]"]
+    for i in range(0, 40, 2):  # every other frame: the ground truth (every frame) is sampled between the images
+        shutil.copy(src.paths[i], cam0 / "data" / src.paths[i].name)
+        listing.append(f"{src.paths[i].stem},{src.paths[i].name}")
+    for i in range(40):
+        T_WB = src.poses[i] @ np.linalg.inv(T_BS)
+        x, y, z, w = rot_to_quat(T_WB[:3, :3])
+        truth.append(f"{src.paths[i].stem},{','.join(f'{v:.9f}' for v in (*T_WB[:3, 3], w, x, y, z))},0.1")
+    (cam0 / "data.csv").write_text("\r\n".join(listing) + "\r\n")
+    (mav / "state_groundtruth_estimate0").mkdir()
+    (mav / "state_groundtruth_estimate0" / "data.csv").write_text("\n".join(truth) + "\n")
+    for folder in (mav.parent, mav, cam0):
+        seq = Sequence.load(folder)
+        assert len(seq) == 20 and np.allclose(seq.stamps, src.stamps[:40:2], atol=1e-6)
+        assert np.array_equal(seq.camera.K, src.camera.K) and np.allclose(seq.camera.dist, src.camera.dist[:4])
+        assert np.array_equal(seq.image(3), src.image(6))
+        assert np.allclose(seq.poses, src.poses[:40:2], atol=1e-6)
+    assert seq.calibration == cam0 / "sensor.yaml" and seq.truth_file == mav / "state_groundtruth_estimate0" / "data.csv"
+
+    (cam0 / "sensor.yaml").write_text(EUROC_SENSOR_YAML.replace("0.0, 0.0, 0.0, 1.0]", "0.0, 0.0, 0.0]"))
+    with pytest.raises(DatasetError, match=f"{cam0 / 'sensor.yaml'}: no T_BS .* 16 numbers"):
+        Sequence.load(mav.parent)
+    (cam0 / "sensor.yaml").write_text(EUROC_SENSOR_YAML)
+    (mav / "state_groundtruth_estimate0" / "data.csv").write_text(truth[0] + "\n" + truth[1].replace(",", ";") + "\n")
+    with pytest.raises(DatasetError, match=r"state_groundtruth_estimate0/data.csv:2: expected 'timestamp \[ns\], p_RS_R"):
+        Sequence.load(mav.parent)
+    (mav / "state_groundtruth_estimate0" / "data.csv").unlink()  # no ground truth: frames without poses
+    assert Sequence.load(mav.parent).poses is None
+    with pytest.raises(DatasetError, match=f"{mav / 'state_groundtruth_estimate0' / 'data.csv'}: missing, so no"):
+        Sequence.load(mav.parent).relative_pose(0, 1)
+    (cam0 / "sensor.yaml").unlink()
+    with pytest.raises(DatasetError, match="sensor.yaml"):
+        Sequence.load(mav.parent)
 
 
 def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_refused(tmp_path, capsys):
