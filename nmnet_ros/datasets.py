@@ -158,7 +158,8 @@ def _layout_hint(line: str) -> str:
     if len(line.split()) == 12:
         return ("; 12 numbers: a KITTI poses file (a 3x4 camera-to-world matrix a line, no time): evo's "
                 "contrib/kitti_poses_and_timestamps_to_trajectory.py POSES times.txt OUT writes it as TUM lines "
-                "with the sequence's times.txt")
+                "with the sequence's times.txt; or give the KITTI sequence folder (sequences/NN) itself, which is read "
+                "with its poses/NN.txt")
     return ""
 
 
@@ -379,10 +380,12 @@ class Sequence:
         if not root.is_dir():
             raise DatasetError(f"{root}: not a directory")
         if not (root / "camera.yaml").is_file():
-            from .asl import camera_folder  # here: asl reads its files with this module's readers
+            from . import asl, kitti  # here: they read their files with this module's readers
 
-            if (cam := camera_folder(root)) is not None:
+            if (cam := asl.camera_folder(root)) is not None:
                 return cls._load_asl(root, cam)
+            if (images := kitti.image_folder(root)) is not None:
+                return cls._load_kitti(root, images)
             if hint := _other_layout(root):
                 raise DatasetError(f"{root / 'camera.yaml'}: missing; {hint}")
         camera = read_camera_yaml(root / "camera.yaml")
@@ -413,12 +416,29 @@ class Sequence:
         """A folder in EuRoC's ASL layout (:mod:`nmnet_ros.asl`), its camera folder ``cam``."""
         from . import asl
 
-        camera = read_camera_yaml(cam / "sensor.yaml")
         stamps, paths = asl.read_frames(cam)
-        truth = asl.read_ground_truth(cam.parent, cam / "sensor.yaml")
-        truth_file = cam.parent / asl.GROUND_TRUTH
-        poses = None if truth is None else _poses_at(truth, stamps, truth_file, cam / "data.csv")
-        seq = cls(root, camera, stamps, paths, poses, None, cam / "sensor.yaml", truth_file)
+        return cls._of_layout(root, read_camera_yaml(cam / "sensor.yaml"), stamps, paths,
+                              asl.read_ground_truth(cam.parent, cam / "sensor.yaml"),
+                              (cam / "sensor.yaml", cam.parent / asl.GROUND_TRUTH, cam / "data.csv"))
+
+    @classmethod
+    def _load_kitti(cls, root: Path, images: Path) -> Sequence:
+        """A KITTI odometry sequence folder (:mod:`nmnet_ros.kitti`), its left camera's ``images``."""
+        from . import kitti
+
+        camera, cam0_to_camera = kitti.camera_and_baseline(kitti.projection(root / "calib.txt", images))
+        stamps, paths = kitti.read_frames(root, images)
+        truth = kitti.read_poses(kitti.poses_file(root), stamps, cam0_to_camera)
+        return cls._of_layout(root, camera, stamps, paths, truth,
+                              (root / "calib.txt", kitti.poses_file(root), root / "times.txt"))
+
+    @classmethod
+    def _of_layout(cls, root: Path, camera: Camera, stamps: np.ndarray, paths: list[Path], truth: Trajectory | None,
+                   files: tuple[Path, Path, Path]) -> Sequence:
+        """A sequence read from another dataset's layout; ``files``: its calibration, ground-truth and frame list."""
+        calibration, truth_file, listing = files
+        poses = None if truth is None else _poses_at(truth, stamps, truth_file, listing)
+        seq = cls(root, camera, stamps, paths, poses, None, calibration, truth_file)
         seq._fit_camera()
         return seq
 

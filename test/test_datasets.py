@@ -310,6 +310,49 @@ def test_a_euroc_asl_download_reads_as_it_is(tmp_path):
         Sequence.load(mav.parent)
 
 
+def test_a_kitti_odometry_download_reads_as_it_is(tmp_path):
+    """KITTI odometry's layout (sequences/NN: image_0/ or image_2/, calib.txt's projections, times.txt; poses/NN.txt
+    beside sequences/, cam0's 3x4 poses) reads as it is; the colour camera's poses are cam0's moved by its baseline.
+    It was refused for a missing camera.yaml. Built here from the shipped KITTI-07 excerpt."""
+    src = Sequence.load(data_dir("kitti-07"))
+    root = tmp_path / "dataset" / "sequences" / "07"
+    (root / "image_0").mkdir(parents=True)
+    for i in range(12):
+        shutil.copy(src.paths[i], root / "image_0" / f"{i:06d}.png")
+    P0 = np.hstack([src.camera.K, np.zeros((3, 1))])
+    b = np.array([0.06, -0.001, 0.002])  # the colour camera's cam0 origin, in its coordinates (P2 = K [I | b])
+    P2 = np.hstack([src.camera.K, (src.camera.K @ b)[:, None]])
+    line = " ".join
+    (root / "calib.txt").write_text("".join(f"{n}: {line(f'{v:.12e}' for v in P.ravel())}\n"
+                                            for n, P in (("P0", P0), ("P1", P0), ("P2", P2), ("P3", P2), ("Tr", P0))))
+    (root / "times.txt").write_text("".join(f"{t:.6e}\n" for t in src.stamps[:12]))
+    seq = Sequence.load(root)
+    assert len(seq) == 12 and seq.poses is None and np.allclose(seq.stamps, src.stamps[:12], atol=1e-6)
+    assert np.allclose(seq.camera.K, src.camera.K) and not seq.camera.dist.any()
+    assert np.array_equal(seq.image(5), src.image(5)) and seq.calibration == root / "calib.txt"
+    (tmp_path / "dataset" / "poses").mkdir()
+    poses = tmp_path / "dataset" / "poses" / "07.txt"
+    poses.write_text("".join(line(f"{v:.12e}" for v in T[:3].ravel()) + "\n" for T in src.poses[:12]))
+    seq = Sequence.load(root)
+    assert np.allclose(seq.poses, src.poses[:12], atol=1e-9) and seq.truth_file == poses
+    assert np.allclose(seq.relative_pose(2, 7)[0], src.relative_pose(2, 7)[0])
+
+    (root / "image_0").rename(root / "image_2")  # the colour download: P2, poses moved by its baseline
+    colour = Sequence.load(root)
+    assert colour.paths[0].parent.name == "image_2" and np.allclose(colour.camera.K, src.camera.K)
+    assert np.allclose(colour.poses[:, :3, 3], src.poses[:12, :3, 3] - src.poses[:12, :3, :3] @ b, atol=1e-9)
+
+    poses.write_text(poses.read_text().split("\n", 1)[1])  # a line short: another sequence's file?
+    with pytest.raises(DatasetError, match=f"{poses}: 11 poses for 12 frames of times.txt"):
+        Sequence.load(root)
+    (root / "calib.txt").write_text("P0: 1 0 0\n")
+    with pytest.raises(DatasetError, match=f"{root / 'calib.txt'}: no 'P2:' line, the projection of image_2's camera"):
+        Sequence.load(root)
+    (root / "calib.txt").write_text("P2: 1 0 0\n")
+    with pytest.raises(DatasetError, match="'P2:' must be 12 numbers"):
+        Sequence.load(root)
+
+
 def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_refused(tmp_path, capsys):
     """A downscaled copy of a dataset (images half camera.yaml's size) was evaluated with the full-size K: poses
     and labels silently wrong (ratio+magsac AUC@5 0.0 on Strecha fountain). K is fitted to the images, with a
@@ -549,7 +592,8 @@ def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
     (tmp_path / "07.txt").write_text("1.000000e+00 0.000000e+00 0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00 "
                                      "0.000000e+00 0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00 0.000000e+00\n")
     with pytest.raises(DatasetError, match=r"07.txt:1: expected .*; 12 numbers: a KITTI poses file .*contrib/"
-                                           r"kitti_poses_and_timestamps_to_trajectory.py POSES times.txt OUT"):
+                                           r"kitti_poses_and_timestamps_to_trajectory.py POSES times.txt OUT .*; or give the KITTI "
+                                           r"sequence folder \(sequences/NN\) itself"):
         read_tum(tmp_path / "07.txt")  # KITTI odometry's poses/07.txt, given as it comes
     (tmp_path / "empty.txt").write_text("# timestamp tx ty tz qx qy qz qw\n\n")
     with pytest.raises(DatasetError, match=r"empty.txt: no poses; expected lines 'timestamp tx ty tz"):
