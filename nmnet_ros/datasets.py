@@ -342,7 +342,7 @@ def _other_layout(root: Path) -> str | None:
     if (root / "rgb.txt").is_file():
         return ("rgb.txt: a TUM RGB-D sequence, read as it is (rgb.txt for images.txt, its groundtruth.txt) once "
                 "camera.yaml holds its camera's calibration (ROS camera_info YAML: the K and D TUM lists for "
-                "freiburg1/2/3)")
+                "freiburg1/2/3), or, named as TUM names it (rgbd_dataset_freiburg1_xyz), with TUM's published one")
     return None
 
 
@@ -372,6 +372,7 @@ class Sequence:
     calibration: Path  # camera.yaml (an ASL folder: its camera's sensor.yaml), named in messages
     truth_file: Path  # groundtruth.txt (an ASL folder: the body's ground truth), named in messages
     size_note: str | None = None  # camera.yaml's K scaled to the images (a resized copy of a dataset)
+    camera_note: str | None = None  # where the calibration came from when the folder has none (TUM RGB-D's)
 
     @classmethod
     def load(cls, root: str | Path) -> Sequence:
@@ -379,16 +380,17 @@ class Sequence:
         root = Path(root)
         if not root.is_dir():
             raise DatasetError(f"{root}: not a directory")
+        published = None
         if not (root / "camera.yaml").is_file():
-            from . import asl, kitti  # here: they read their files with this module's readers
+            from . import asl, kitti, tum  # here: they read their files with this module's readers
 
             if (cam := asl.camera_folder(root)) is not None:
                 return cls._load_asl(root, cam)
             if (images := kitti.image_folder(root)) is not None:
                 return cls._load_kitti(root, images)
-            if hint := _other_layout(root):
+            if (published := tum.published_camera(root)) is None and (hint := _other_layout(root)):
                 raise DatasetError(f"{root / 'camera.yaml'}: missing; {hint}")
-        camera = read_camera_yaml(root / "camera.yaml")
+        camera, camera_note = published or (read_camera_yaml(root / "camera.yaml"), None)
         listing = root / "images.txt"
         if not listing.is_file() and (root / "rgb.txt").is_file():
             listing = root / "rgb.txt"  # a TUM RGB-D sequence: the same 'timestamp path' lines
@@ -407,7 +409,8 @@ class Sequence:
             bad = [p for p in pairs if not (0 <= p[0] < len(paths) and 0 <= p[1] < len(paths))]
             if bad:
                 raise DatasetError(f"{root / 'pairs.txt'}: pair indices out of range: {bad[:3]}")
-        seq = cls(root, camera, stamps, paths, poses, pairs, root / "camera.yaml", root / "groundtruth.txt")
+        seq = cls(root, camera, stamps, paths, poses, pairs, root / "camera.yaml", root / "groundtruth.txt",
+                  camera_note=camera_note)
         seq._fit_camera()
         return seq
 
@@ -493,8 +496,8 @@ class Sequence:
 
     def notes(self, uncovered: str = "pairs with them are left out") -> list[str]:
         """What to tell the user before using the folder: K scaled to the images, frames without a pose (and
-        ``uncovered``: what the tool does with those)."""
-        return [note for note in (self.size_note, self.uncovered_note(uncovered)) if note]
+        ``uncovered``: what the tool does with those), a calibration the folder does not hold."""
+        return [note for note in (self.camera_note, self.size_note, self.uncovered_note(uncovered)) if note]
 
     def uncovered_note(self, consequence: str = "pairs with them are left out") -> str | None:
         """What to tell the user when groundtruth.txt leaves frames without a pose (None when it covers all)."""

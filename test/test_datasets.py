@@ -262,6 +262,33 @@ def test_a_tum_rgbd_folder_reads_as_it_is_and_other_benchmarks_are_named(tmp_pat
         Sequence.load(boat)
 
 
+def test_a_tum_rgbd_folder_named_as_tum_names_it_takes_tums_published_calibration(tmp_path, capsys):
+    """A TUM RGB-D download has no calibration file: its folder's name (rgbd_dataset_freiburgN_...) says which
+    camera, whose calibration TUM publishes; it is used, with a note, and a camera.yaml in the folder replaces it."""
+    src = Sequence.load(data_dir("kitti-07"))
+    for n, fx in ((1, 517.3), (3, 535.4)):
+        root = tmp_path / f"rgbd_dataset_freiburg{n}_xyz"
+        (root / "rgb").mkdir(parents=True)
+        for i in range(3):
+            cv2.imwrite(str(root / "rgb" / f"{i}.png"), src.image(i)[:, 293:933][:480].repeat(2, axis=0)[:480])
+        (root / "rgb.txt").write_text("# color images\n" + "".join(f"{1305031102 + i / 30:.6f} rgb/{i}.png\n" for i in range(3)))
+        seq = Sequence.load(root)
+        assert seq.camera.K[0, 0] == fx and (seq.camera.width, seq.camera.height) == (640, 480)
+        assert seq.camera.dist.any() == (n == 1) and seq.image(2).shape == (480, 640)
+        assert seq.notes() == [f"{root / 'camera.yaml'}: missing; TUM's published calibration of the freiburg{n} RGB "
+                               f"camera is used (fx {fx}, fy {seq.camera.K[1, 1]}, cx {seq.camera.K[0, 2]}, cy "
+                               f"{seq.camera.K[1, 2]}); a camera.yaml in the folder replaces it"]
+    shutil.copy(data_dir("euroc-v101-cam0") / "camera.yaml", root / "camera.yaml")  # 752x480: the file is read
+    with pytest.raises(DatasetError, match="camera.yaml describes 752x480 frames but 0.png is 640x480"):
+        Sequence.load(root)
+    from nmnet_ros.cli import main
+
+    (root / "camera.yaml").unlink()
+    assert main(["eval", str(root), "--gaps", "1", "--methods", "ratio"]) == 2  # no groundtruth.txt: said after the note
+    said = capsys.readouterr().err
+    assert said.index("TUM's published calibration of the freiburg3 RGB camera is used") < said.index("groundtruth.txt: missing")
+
+
 def test_a_euroc_asl_download_reads_as_it_is(tmp_path):
     """EuRoC's ASL layout (mav0/cam0/data.csv stamped in ns, sensor.yaml, the body's ground truth with qw first) reads
     as it is, the camera's poses those of the body composed with the camera's T_BS: it was only named, with its bag's
