@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .datasets import DatasetError, Trajectory, Unfit, _pose_problem, _read_table, quat_to_rot
+from .datasets import DatasetError, Trajectory, Unfit, pose_problem, quat_to_rot, read_table
 
 GROUND_TRUTH = Path("state_groundtruth_estimate0") / "data.csv"
 
@@ -27,7 +27,7 @@ def camera_folder(root: Path) -> Path | None:
 
 def read_frames(cam: Path) -> tuple[np.ndarray, list[Path]]:
     """The camera's stamps (seconds) and image paths from its data.csv."""
-    rows = _read_table(cam / "data.csv", "timestamp [ns],filename",
+    rows = read_table(cam / "data.csv", "timestamp [ns],filename",
                        lambda r: (int(r[0]) * 1e-9, cam / "data" / r[1].strip()), sep=",")
     if not rows:
         raise DatasetError(f"{cam / 'data.csv'}: no frames listed")
@@ -53,7 +53,7 @@ def _body_row(fields: list[str]) -> list[float]:
     if len(fields) < 8:
         raise ValueError(f"{len(fields)} fields")
     ns, x, y, z, qw, qx, qy, qz = (float(f) for f in fields[:8])
-    if (why := _pose_problem([x, y, z, qx, qy, qz, qw])) is not None:
+    if (why := pose_problem([x, y, z, qx, qy, qz, qw])) is not None:
         raise Unfit(why)
     return [ns * 1e-9, x, y, z, qx, qy, qz, qw]
 
@@ -65,7 +65,7 @@ def read_ground_truth(mav: Path, sensor_yaml: Path) -> Trajectory | None:
     if not path.is_file():
         return None
     T_BS = body_to_camera(sensor_yaml)
-    rows = _read_table(path, "timestamp [ns], p_RS_R x y z [m], q_RS w x y z, ...", _body_row, sep=",")
+    rows = read_table(path, "timestamp [ns], p_RS_R x y z [m], q_RS w x y z, ...", _body_row, sep=",")
     if not rows:
         raise DatasetError(f"{path}: no poses")
     a = np.array(rows, np.float64)

@@ -123,7 +123,7 @@ def _kalibr_camera(d: dict) -> Camera:
                   KALIBR_DISTORTION[name])
 
 
-def _read_table(path: Path, columns: str, convert: Callable[[list[str]], Row], maxsplit: int = -1,
+def read_table(path: Path, columns: str, convert: Callable[[list[str]], Row], maxsplit: int = -1,
                 sep: str | None = None) -> list[Row]:
     """The rows of a whitespace-separated (or ``sep``-separated) text file (blank and '#' lines skipped), each
     converted.
@@ -167,7 +167,7 @@ class Unfit(ValueError):
     """A row of the right form whose values cannot be right; says why."""
 
 
-def _floats(n: int) -> Callable[[list[str]], list[float]]:
+def floats(n: int) -> Callable[[list[str]], list[float]]:
     """A row converter: exactly ``n`` numbers."""
     def convert(fields: list[str]) -> list[float]:
         if len(fields) != n:
@@ -186,7 +186,7 @@ def quat_to_rot(q: np.ndarray) -> np.ndarray:
                      np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
-def _pose_problem(xyzq: list[float]) -> str | None:
+def pose_problem(xyzq: list[float]) -> str | None:
     """What makes 'x y z qx qy qz qw' no pose (None: nothing). NaN poses and zero quaternions are how some
     exporters write a lost track: refused, not turned into pairs that silently drop out."""
     if not np.all(np.isfinite(xyzq)):
@@ -197,9 +197,9 @@ def _pose_problem(xyzq: list[float]) -> str | None:
 
 
 def _pose_row(fields: list[str]) -> list[float]:
-    """A TUM row converter: a stamp and a pose (:func:`_pose_problem`)."""
-    row = _floats(8)(fields)
-    why = _pose_problem(row[1:]) if np.isfinite(row[0]) else "a stamp that is not a finite number"
+    """A TUM row converter: a stamp and a pose (:func:`pose_problem`)."""
+    row = floats(8)(fields)
+    why = pose_problem(row[1:]) if np.isfinite(row[0]) else "a stamp that is not a finite number"
     if why is not None:
         raise Unfit(why)
     return row
@@ -208,7 +208,7 @@ def _pose_row(fields: list[str]) -> list[float]:
 MAX_SPACING_S = 1e5  # a day between ground-truth poses or frames: stamps in ns (1e8 at 10 Hz), not seconds
 
 
-def _check_seconds(path: Path, stamps: np.ndarray, what: str) -> None:
+def check_seconds(path: Path, stamps: np.ndarray, what: str) -> None:
     """Refuse a file whose stamps are nanoseconds (as ROS tools write them), which read as seconds put days between
     its rows, naming the conversion."""
     steps = np.diff(np.sort(stamps))
@@ -220,11 +220,11 @@ def _check_seconds(path: Path, stamps: np.ndarray, what: str) -> None:
 
 def read_tum(path: Path) -> Trajectory:
     """TUM trajectory file ('timestamp tx ty tz qx qy qz qw' lines, T_WC) -> :class:`Trajectory`."""
-    rows = _read_table(path, "timestamp tx ty tz qx qy qz qw", _pose_row)
+    rows = read_table(path, "timestamp tx ty tz qx qy qz qw", _pose_row)
     if not rows:
         raise DatasetError(f"{path}: no poses; expected lines 'timestamp tx ty tz qx qy qz qw'")
     a = np.array(rows, np.float64)
-    _check_seconds(path, a[:, 0], "poses")
+    check_seconds(path, a[:, 0], "poses")
     T = np.tile(np.eye(4), (len(a), 1, 1))
     for n, r in enumerate(a):
         T[n, :3, :3] = quat_to_rot(r[4:8])
@@ -239,7 +239,7 @@ def parse_pose(text: str) -> np.ndarray:
         v = [float(f) for f in text.replace(",", " ").split()]
     except ValueError:
         v = []
-    if len(v) != 7 or _pose_problem(v) is not None:
+    if len(v) != 7 or pose_problem(v) is not None:
         raise ValueError(f"{text!r}: expected 'x y z qx qy qz qw', seven numbers with a non-zero quaternion")
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = quat_to_rot(v[3:]), v[:3]
@@ -394,18 +394,18 @@ class Sequence:
         listing = root / "images.txt"
         if not listing.is_file() and (root / "rgb.txt").is_file():
             listing = root / "rgb.txt"  # a TUM RGB-D sequence: the same 'timestamp path' lines
-        rows = _read_table(listing, "timestamp path", lambda r: (float(r[0]), root / r[1].strip()), maxsplit=1)
+        rows = read_table(listing, "timestamp path", lambda r: (float(r[0]), root / r[1].strip()), maxsplit=1)
         if not rows:
             raise DatasetError(f"{listing}: no frames listed")
         stamps = np.array([stamp for stamp, _ in rows])
-        _check_seconds(listing, stamps, "frames")
+        check_seconds(listing, stamps, "frames")
         paths = [path for _, path in rows]
         poses = None
         if (root / "groundtruth.txt").is_file():
             poses = _poses_at(read_tum(root / "groundtruth.txt"), stamps, root / "groundtruth.txt", listing)
         pairs = None
         if (root / "pairs.txt").is_file():
-            pairs = _read_table(root / "pairs.txt", "i j", lambda r: (int(r[0]), int(r[1])))
+            pairs = read_table(root / "pairs.txt", "i j", lambda r: (int(r[0]), int(r[1])))
             bad = [p for p in pairs if not (0 <= p[0] < len(paths) and 0 <= p[1] < len(paths))]
             if bad:
                 raise DatasetError(f"{root / 'pairs.txt'}: pair indices out of range: {bad[:3]}")

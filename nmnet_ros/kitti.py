@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .datasets import DatasetError, Trajectory, _check_seconds, _floats, _read_table
+from .datasets import DatasetError, Trajectory, check_seconds, floats, read_table
 from .geometry import Camera
 
 CAMERAS = ("image_0", "image_2")  # grey left, colour left: the two downloads' left camera
@@ -34,22 +34,22 @@ def poses_file(root: Path) -> Path:
 def projection(calib: Path, images: Path) -> np.ndarray:
     """The 3x4 projection of the camera whose images are in ``images`` (``image_2`` -> ``P2:``)."""
     key = f"P{images.name[-1]}:"
-    rows = _read_table(calib, "NAME: 12 numbers", lambda r: (r[0], r[1:]))
+    rows = read_table(calib, "NAME: 12 numbers", lambda r: (r[0], r[1:]))
     found = [values for name, values in rows if name == key]
     if not found:
         raise DatasetError(f"{calib}: no '{key}' line, the projection of {images.name}'s camera")
     try:
-        return np.array(_floats(12)(found[0]), np.float64).reshape(3, 4)
+        return np.array(floats(12)(found[0]), np.float64).reshape(3, 4)
     except ValueError as e:
         raise DatasetError(f"{calib}: '{key}' must be 12 numbers (a 3x4 projection), got {len(found[0])}") from e
 
 
 def read_frames(root: Path, images: Path) -> tuple[np.ndarray, list[Path]]:
     """The stamps (times.txt, seconds) and the image paths (``000000.png`` ..., one per line of times.txt)."""
-    stamps = np.array(_read_table(root / "times.txt", "seconds", lambda r: _floats(1)(r)[0]), np.float64)
+    stamps = np.array(read_table(root / "times.txt", "seconds", lambda r: floats(1)(r)[0]), np.float64)
     if not len(stamps):
         raise DatasetError(f"{root / 'times.txt'}: no frames listed")
-    _check_seconds(root / "times.txt", stamps, "frames")
+    check_seconds(root / "times.txt", stamps, "frames")
     suffix = next((p.suffix for p in sorted(images.iterdir()) if p.suffix.lower() == ".png"), ".png")
     return stamps, [images / f"{i:06d}{suffix}" for i in range(len(stamps))]
 
@@ -67,7 +67,7 @@ def read_poses(path: Path, stamps: np.ndarray, cam0_to_camera: np.ndarray) -> Tr
     """The camera's poses, a line of ``path`` per frame (None when the file is not there)."""
     if not path.is_file():
         return None
-    rows = _read_table(path, "12 numbers (a 3x4 camera-to-world matrix)", _floats(12))
+    rows = read_table(path, "12 numbers (a 3x4 camera-to-world matrix)", floats(12))
     if len(rows) != len(stamps):
         raise DatasetError(f"{path}: {len(rows)} poses for {len(stamps)} frames of times.txt: a line per frame, "
                            "in order; is it this sequence's file?")
