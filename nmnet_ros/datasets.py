@@ -369,8 +369,8 @@ class Sequence:
     paths: list[Path]
     poses: np.ndarray | None  # (N,4,4) T_WC; NaN for a frame groundtruth.txt has no pose for
     pairs_file: list[tuple[int, int]] | None
-    calibration: Path  # camera.yaml (an ASL folder: its camera's sensor.yaml), named in messages
-    truth_file: Path  # groundtruth.txt (an ASL folder: the body's ground truth), named in messages
+    calibration: Path  # camera.yaml (EuRoC's layout: the camera's sensor.yaml; KITTI's: calib.txt), named in messages
+    truth_file: Path  # groundtruth.txt (EuRoC's: the body's data.csv; KITTI's: poses/NN.txt), named in messages
     size_note: str | None = None  # camera.yaml's K scaled to the images (a resized copy of a dataset)
     camera_note: str | None = None  # where the calibration came from when the folder has none (TUM RGB-D's)
 
