@@ -6,7 +6,7 @@ Also pair sampling by frame gap and ground-truth labels of correspondences.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TypeVar
 
@@ -448,12 +448,17 @@ class Sequence:
     def _fit_camera(self) -> None:
         """Fit camera.yaml to the first image's size: K scaled, with a note, when the images are its size scaled
         evenly (a downscaled copy of a dataset); refused for any other size. Poses and labels from a camera of
-        another size were silently wrong (AUC 0 on Strecha at half size)."""
+        another size were silently wrong (AUC 0 on Strecha at half size). A calibration without a size (KITTI's
+        calib.txt, a camera.yaml without image_width) takes the first image's, so that every frame is checked
+        against it."""
         try:
             h, w = _decode(self.paths[0]).shape[:2]
         except DatasetError:
             return  # named where the frame is used
         cam = self.camera
+        if cam.width <= 0 or cam.height <= 0:
+            self.camera = replace(cam, width=w, height=h)
+            return
         fitted, _ = fit_camera(cam, (w, h))
         said = f"{self.calibration} describes {cam.width}x{cam.height} frames but {self.paths[0].name} is {w}x{h}"
         if fitted is None:

@@ -357,6 +357,11 @@ def test_a_kitti_odometry_download_reads_as_it_is(tmp_path):
     assert len(seq) == 12 and seq.poses is None and np.allclose(seq.stamps, src.stamps[:12], atol=1e-6)
     assert np.allclose(seq.camera.K, src.camera.K) and not seq.camera.dist.any()
     assert np.array_equal(seq.image(5), src.image(5)) and seq.calibration == root / "calib.txt"
+    assert (seq.camera.width, seq.camera.height) == (1226, 370)  # the first image's: every frame is checked against it
+    cv2.imwrite(str(root / "image_0" / "000011.png"), src.image(11)[:, :1000])
+    with pytest.raises(DatasetError, match="000011.png: 1000x370, but the folder's frames are 1226x370"):
+        Sequence.load(root).image(11)
+    shutil.copy(src.paths[11], root / "image_0" / "000011.png")
     (tmp_path / "dataset" / "poses").mkdir()
     poses = tmp_path / "dataset" / "poses" / "07.txt"
     poses.write_text("".join(line(f"{v:.12e}" for v in T[:3].ravel()) + "\n" for T in src.poses[:12]))
