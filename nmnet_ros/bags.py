@@ -112,7 +112,18 @@ def _bag_files(path: Path, meta: dict | None) -> tuple[str, list[Path], list[str
     if parts := sorted(path.glob("*.bag"), key=_natural):  # a ROS 1 recording split by `rosbag record --split`
         note = f"{path}: its {len(parts)} ROS 1 bags are read as one recording, merged in time"
         return "bag", parts, [note] if len(parts) > 1 else []
-    raise BagError(f"{path}: directory holds no .mcap, .db3 or .bag file")
+    raise BagError(f"{path}: directory holds no .mcap, .db3 or .bag file{_images_folder_hint(path)}")
+
+
+def _images_folder_hint(path: Path) -> str:
+    """What to do with a folder of images given as a bag (a sequence folder, a EuRoC or KITTI download), or ''."""
+    from . import asl, kitti
+
+    if not any((path / name).is_file() for name in ("images.txt", "rgb.txt", "camera.yaml")) and \
+            asl.camera_folder(path) is None and kitti.image_folder(path) is None:
+        return ""
+    return (f"; it is a folder of images with their poses: `nmnet make-bag {path} OUT.mcap` writes it as a bag to "
+            f"replay, `nmnet eval {path}` scores its pairs directly")
 
 
 SIGNATURES = {"mcap": b"\x89MCAP0\r\n", "db3": b"SQLite format 3\0", "bag": b"#ROSBAG V2.0",  # how each begins

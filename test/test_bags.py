@@ -279,6 +279,23 @@ def test_a_folder_of_ros1_bag_parts_replays_as_one_recording(tmp_path):
     assert r.returncode == 0 and s["processed"] == 9 and s["scored_pairs"] == 8, (r.stderr, s)
 
 
+def test_a_folder_of_images_given_as_a_bag_says_how_to_replay_or_score_it(tmp_path):
+    """A sequence folder (or a EuRoC / KITTI download) given to replay was "directory holds no .mcap, .db3 or .bag
+    file": it says what the folder is and the two commands that take it."""
+    with pytest.raises(BagError, match=r"holds no .mcap, .db3 or .bag file$"):
+        BagReader(tmp_path)
+    src = data_dir("kitti-07")
+    kitti = tmp_path / "sequences" / "07"
+    (kitti / "image_0").mkdir(parents=True)
+    (kitti / "times.txt").write_text("0.0\n")
+    (kitti / "calib.txt").write_text("P0: 1 0 0 0 0 1 0 0 0 0 1 0\n")
+    for folder in (src, kitti):
+        with pytest.raises(BagError, match=f"{folder}: directory holds no .mcap, .db3 or .bag file; it is a folder of "
+                                           f"images with their poses: `nmnet make-bag {folder} OUT.mcap` writes it as "
+                                           f"a bag to replay, `nmnet eval {folder}` scores its pairs directly"):
+            BagReader(folder)
+
+
 def test_an_mcap_converted_from_a_ros1_bag_reads_as_the_bag(bags, tmp_path):
     """``mcap convert x.bag x.mcap`` keeps ROS 1 schemas (ros1msg, sensor_msgs/Image) and ROS 1 serialisation: the
     frames are those of the .bag (the reader found "no sensor_msgs/Image or CompressedImage topic", listing
