@@ -334,8 +334,15 @@ def _poses_at(gt: Trajectory, stamps: np.ndarray, source: Path, listing: Path) -
     return poses
 
 
+BAG_SUFFIXES = (".mcap", ".db3", ".bag")
+_BAG_HINT = ("a recording: nmnet replay scores a bag against its ground truth (`nmnet replay BAG --out o.mcap --json "
+             "s.json`); nmnet eval and train read sequence folders")
+
+
 def _other_layout(root: Path) -> str | None:
-    """What to do with a folder of another benchmark's layout that lacks camera.yaml, or None."""
+    """What to do with a folder of another benchmark's layout (or a bag's folder) that lacks camera.yaml, or None."""
+    if (root / "metadata.yaml").is_file() or any(p.suffix in BAG_SUFFIXES for p in root.iterdir()):
+        return _BAG_HINT
     if any(root.glob("H_1_to_*")):
         return ("H_1_to_N files: a homography benchmark (Oxford affine regions, HPatches), which has no camera poses; "
                 "nmnet eval and train score relative poses: they need camera.yaml and groundtruth.txt")
@@ -379,7 +386,7 @@ class Sequence:
         """Read a folder; raises DatasetError naming the missing or malformed file."""
         root = Path(root)
         if not root.is_dir():
-            raise DatasetError(f"{root}: not a directory")
+            raise DatasetError(f"{root}: not a directory{'; ' + _BAG_HINT if root.suffix in BAG_SUFFIXES else ''}")
         published = None
         if not (root / "camera.yaml").is_file():
             from . import asl, kitti, tum  # here: they read their files with this module's readers

@@ -229,6 +229,21 @@ def test_empty_folder_names_missing_camera_yaml(tmp_path):
         Sequence.load(tmp_path)
 
 
+def test_a_bag_given_to_eval_names_replay(tmp_path):
+    """A bag (its file or its folder) given to eval or train said "not a directory" or "camera.yaml: missing"; it
+    says it is a recording and names the tool that scores one."""
+    from nmnet_ros.demo import SAMPLE_BAG
+
+    said = r"a recording: nmnet replay scores a bag against its ground truth \(`nmnet replay BAG"
+    bag = next(SAMPLE_BAG.glob("*.mcap"))
+    with pytest.raises(DatasetError, match=f"{bag}: not a directory; {said}"):
+        Sequence.load(bag)
+    with pytest.raises(DatasetError, match=f"{SAMPLE_BAG / 'camera.yaml'}: missing; {said}"):
+        Sequence.load(SAMPLE_BAG)
+    with pytest.raises(DatasetError, match=r"x.txt: not a directory$"):
+        Sequence.load(tmp_path / "x.txt")
+
+
 def test_a_tum_rgbd_folder_reads_as_it_is_and_other_benchmarks_are_named(tmp_path):
     """TUM RGB-D's layout (rgb.txt, rgb/<stamp>.png, groundtruth.txt at its own rate, '#' headers) is the sequence
     format with rgb.txt for images.txt: it was refused for a missing images.txt. A homography benchmark's folder is
