@@ -335,8 +335,8 @@ def _poses_at(gt: Trajectory, stamps: np.ndarray, source: Path, listing: Path) -
 
 
 BAG_SUFFIXES = (".mcap", ".db3", ".bag")
-_BAG_HINT = ("a recording: nmnet replay scores a bag against its ground truth (`nmnet replay BAG --out o.mcap --json "
-             "s.json`); nmnet eval and train read sequence folders")
+_BAG_HINT = ("this is a recording (a bag), which nmnet replay scores against its ground truth (`nmnet replay BAG --out "
+             "o.mcap --json s.json`); nmnet eval and train read sequence folders")
 
 
 def _other_layout(root: Path) -> str | None:

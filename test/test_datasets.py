@@ -234,7 +234,7 @@ def test_a_bag_given_to_eval_names_replay(tmp_path):
     says it is a recording and names the tool that scores one."""
     from nmnet_ros.demo import SAMPLE_BAG
 
-    said = r"a recording: nmnet replay scores a bag against its ground truth \(`nmnet replay BAG"
+    said = r"this is a recording \(a bag\), which nmnet replay scores against its ground truth \(`nmnet replay BAG"
     bag = next(SAMPLE_BAG.glob("*.mcap"))
     with pytest.raises(DatasetError, match=f"{bag}: not a directory; {said}"):
         Sequence.load(bag)
