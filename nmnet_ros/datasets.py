@@ -334,6 +334,8 @@ def _poses_at(gt: Trajectory, stamps: np.ndarray, source: Path, listing: Path) -
     return poses
 
 
+FOLDERS_READ = ("camera.yaml + images.txt + groundtruth.txt, a EuRoC (ASL) or KITTI odometry download, or a TUM RGB-D "
+                "sequence")  # what Sequence.load takes, for the tools' --help
 BAG_SUFFIXES = (".mcap", ".db3", ".bag")
 _BAG_HINT = ("this is a recording (a bag), which nmnet replay scores against its ground truth (`nmnet replay BAG --out "
              "o.mcap --json s.json`); nmnet eval and train read sequence folders")

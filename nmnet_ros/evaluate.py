@@ -21,7 +21,7 @@ import numpy as np
 from .bf16 import PRECISIONS
 from .cache import FeatureCache
 from .cli import file_path, gaps, output_file, progress, whole
-from .datasets import Sequence
+from .datasets import FOLDERS_READ, Sequence
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
@@ -197,7 +197,7 @@ def plot_curves(errors: dict[str, np.ndarray], path: Path) -> None:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet eval``."""
-    p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help="sequence folders (optional frame range)")
+    p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help=f"sequence folders (optional frame range): {FOLDERS_READ}")
     p.add_argument("--methods", default="nmnet,nmnet-sp,ratio,ransac,magsac,ratio+magsac,nmnet+magsac,oracle",
                    help=f"comma-separated, from: {', '.join(METHODS)}")
     p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")

@@ -17,7 +17,7 @@ import numpy as np
 from .bags import BagError, typestore
 from .caminfo import info_fields
 from .cli import output_folder
-from .datasets import DatasetError, Sequence
+from .datasets import FOLDERS_READ, DatasetError, Sequence
 from .imgconv import array_to_image_fields
 from .pairs import parse_seq_spec
 from .posemsg import rot_to_quat
@@ -133,7 +133,7 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet make-bag``."""
-    p.add_argument("seq", metavar="SEQ_DIR[:a-b]", help="sequence folder (optional frame range)")
+    p.add_argument("seq", metavar="SEQ_DIR[:a-b]", help=f"sequence folder (optional frame range): {FOLDERS_READ}")
     p.add_argument("out", type=Path, help="output: ROS 2 bag directory (mcap, sqlite3) or .bag file (ros1)")
     p.add_argument("--format", choices=FORMATS, default="mcap")
     p.add_argument("--compressed", action="store_true", help="sensor_msgs/CompressedImage instead of Image: JPEG, PNG for 16-bit frames")

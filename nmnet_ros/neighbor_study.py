@@ -14,6 +14,7 @@ import numpy as np
 
 from .cache import FeatureCache
 from .cli import file_path, gaps, output_file, whole
+from .datasets import FOLDERS_READ
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .evaluate import load_eval_pairs
 from .neighbors import compatibility_neighbors, spatial_neighbors
@@ -55,7 +56,7 @@ def study(pairs: list[PairData], k: int = 8) -> dict:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet neighbors``."""
-    p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help="sequence folders (optional frame range)")
+    p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help=f"sequence folders (optional frame range): {FOLDERS_READ}")
     p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,2")
     p.add_argument("--stride", type=whole(1), default=10, help="use every n-th frame as a pair's first frame")
     p.add_argument("--k", type=whole(1), default=8)

@@ -29,7 +29,7 @@ import torch
 
 from .cache import FeatureCache
 from .cli import gaps, output_folder, progress, whole
-from .datasets import LABEL_THRESHOLD, Sequence, pose_labels
+from .datasets import FOLDERS_READ, LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
 from .metrics import prf
@@ -536,7 +536,8 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet train``."""
-    p.add_argument("--train", nargs="+", required=True, metavar="SEQ[:a-b]", help="training sequence folders (optional frame range)")
+    p.add_argument("--train", nargs="+", required=True, metavar="SEQ[:a-b]",
+                   help=f"training sequence folders (optional frame range): {FOLDERS_READ}")
     p.add_argument("--val", nargs="+", required=True, metavar="SEQ[:a-b]", help="validation sequence folders")
     p.add_argument("--out", type=Path, required=True, help="output folder for checkpoints")
     p.add_argument("--variant", choices=sorted(NEIGHBORS), default=DEFAULT_CONFIG["variant"])
