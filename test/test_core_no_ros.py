@@ -8,8 +8,8 @@ import pytest
 
 from .conftest import ROOT
 
-CORE = ["features", "matching", "neighbors", "geometry", "planes", "datasets", "model", "pairs", "metrics", "cache", "train",
-        "neighbor_study"]
+CORE = ["features", "matching", "neighbors", "geometry", "planes", "datasets", "asl", "kitti", "tum", "model", "pairs", "metrics",
+        "cache", "train", "neighbor_study"]
 OFFLINE_TOOLS = ["evaluate", "replay", "make_bag", "bench", "cli", "params"]  # nmnet replay (offline), eval, make-bag, bench
 
 
