@@ -62,8 +62,11 @@ class Camera:
         if not np.allclose(self.K[2], [0.0, 0.0, 1.0]) or self.K[1, 0] != 0:
             raise CameraError(f"K must be [fx s cx; 0 fy cy; 0 0 1], got rows 2-3 {self.K[1].tolist()} "
                               f"{self.K[2].tolist()}: divide K by its last element, or check its row order")
+        if self.model == "equidistant" and self.dist.size == 5 and self.dist[4] == 0:
+            self.dist = self.dist[:4]  # realsense-ros pads the T265's k1..k4 with a 0 (ROS 1; ROS 2 until late 2021)
         if self.model == "equidistant" and self.dist.size not in (0, 4):
-            raise CameraError(f"equidistant (fisheye) distortion has 4 coefficients k1..k4, got {self.dist.size}")
+            fifth = f" (a fifth of 0 is taken as padding; this one is {self.dist[4]:g})" if self.dist.size == 5 else ""
+            raise CameraError(f"equidistant (fisheye) distortion has 4 coefficients k1..k4, got {self.dist.size}{fifth}")
         if self.dist.size not in (0, 4, 5, 8, 12, 14):
             raise CameraError(f"distortion must have 0/4/5/8/12/14 coefficients, got {self.dist.size}")
 

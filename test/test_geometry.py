@@ -282,12 +282,24 @@ def test_skewed_camera_with_distortion_normalises(model, dist):
 
 @pytest.mark.parametrize("model, dist, msg", [
     ("fov", [0.9], "distortion model 'fov' is not supported; use one of plumb_bob, rational_polynomial, equidistant"),
-    ("equidistant", [0.1, 0.0, 0.0, 0.0, 0.0], "equidistant (fisheye) distortion has 4 coefficients k1..k4, got 5"),
+    ("equidistant", [0.1, 0.0, 0.0, 0.0, 0.2], "equidistant (fisheye) distortion has 4 coefficients k1..k4, got 5 "
+                                               "(a fifth of 0 is taken as padding; this one is 0.2)"),
+    ("equidistant", [0.1, 0.0, 0.0], "equidistant (fisheye) distortion has 4 coefficients k1..k4, got 3"),
 ])
 def test_unsupported_distortion_is_refused_by_name(model, dist, msg):
     with pytest.raises(CameraError) as err:
         Camera(K, dist, model=model)
     assert msg in str(err.value)
+
+
+def test_a_fisheye_camera_info_padded_to_five_coefficients_reads_as_its_four():
+    """realsense-ros (ROS 1; ROS 2 until late 2021) publishes the T265's equidistant D as k1..k4 and a 0: it was refused
+    ("4 coefficients, got 5"), so no frame of such a bag was processed."""
+    D = [-0.0093, 0.0462, -0.0434, 0.0080]
+    padded, cam = Camera(K, D + [0.0], model="equidistant"), Camera(K, D, model="equidistant")
+    px = np.array([[10.0, 20.0], [600.0, 400.0], [320.0, 240.0]])
+    assert padded.dist.tolist() == D
+    np.testing.assert_allclose(padded.normalize(px), cam.normalize(px), atol=0)
 
 
 @pytest.mark.parametrize("model, dist", [("inverse_brown_conrady", [0.0] * 5), ("none", []), ("fov", [0.0])])
