@@ -50,8 +50,7 @@ def read_frames(root: Path, images: Path) -> tuple[np.ndarray, list[Path]]:
     if not len(stamps):
         raise DatasetError(f"{root / 'times.txt'}: no frames listed")
     check_seconds(root / "times.txt", stamps, "frames")
-    suffix = next((p.suffix for p in sorted(images.iterdir()) if p.suffix.lower() == ".png"), ".png")
-    return stamps, [images / f"{i:06d}{suffix}" for i in range(len(stamps))]
+    return stamps, [images / f"{i:06d}.png" for i in range(len(stamps))]
 
 
 def camera_and_baseline(P: np.ndarray) -> tuple[Camera, np.ndarray]:
