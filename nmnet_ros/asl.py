@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .datasets import DatasetError, Trajectory, Unfit, pose_problem, quat_to_rot, read_table
+from .datasets import DatasetError, Trajectory, Unfit, pose_problem, poses_from_xyzq, read_table
 
 GROUND_TRUTH = Path("state_groundtruth_estimate0") / "data.csv"
 
@@ -28,7 +28,7 @@ def camera_folder(root: Path) -> Path | None:
 def read_frames(cam: Path) -> tuple[np.ndarray, list[Path]]:
     """The camera's stamps (seconds) and image paths from its data.csv."""
     rows = read_table(cam / "data.csv", "timestamp [ns],filename",
-                       lambda r: (int(r[0]) * 1e-9, cam / "data" / r[1].strip()), sep=",")
+                      lambda r: (int(r[0]) * 1e-9, cam / "data" / r[1].strip()), sep=",")
     if not rows:
         raise DatasetError(f"{cam / 'data.csv'}: no frames listed")
     return np.array([s for s, _ in rows]), [p for _, p in rows]
@@ -69,6 +69,4 @@ def read_ground_truth(mav: Path, sensor_yaml: Path) -> Trajectory | None:
     if not rows:
         raise DatasetError(f"{path}: no poses")
     a = np.array(rows, np.float64)
-    T = np.tile(np.eye(4), (len(a), 1, 1))
-    T[:, :3, :3], T[:, :3, 3] = quat_to_rot(a[:, 4:8]), a[:, 1:4]
-    return Trajectory(a[:, 0], T).moved(T_BS)
+    return Trajectory(a[:, 0], poses_from_xyzq(a[:, 1:8])).moved(T_BS)

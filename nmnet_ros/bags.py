@@ -20,7 +20,7 @@ from rosbags.typesys.msg import get_types_from_msg
 from rosbags.typesys.store import Typestore
 
 from .caminfo import camera_from_info
-from .datasets import Trajectory, quat_to_rot
+from .datasets import Trajectory, poses_from_xyzq
 from .dds import is_depth
 from .geometry import Camera, CameraError
 from .imgconv import IMAGE_TYPES, ImageError, decode_compressed, image_to_array
@@ -437,10 +437,7 @@ def pose_from_msg(msg: Any) -> np.ndarray:
     else:
         pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
         p, o = pose.position, pose.orientation
-    T = np.eye(4)
-    T[:3, :3] = quat_to_rot([o.x, o.y, o.z, o.w])
-    T[:3, 3] = [p.x, p.y, p.z]
-    return T
+    return poses_from_xyzq(np.array([[p.x, p.y, p.z, o.x, o.y, o.z, o.w]], np.float64))[0]
 
 
 def decode_image_msg(msg: Any, msgtype: str) -> np.ndarray:

@@ -225,11 +225,14 @@ def read_tum(path: Path) -> Trajectory:
         raise DatasetError(f"{path}: no poses; expected lines 'timestamp tx ty tz qx qy qz qw'")
     a = np.array(rows, np.float64)
     check_seconds(path, a[:, 0], "poses")
-    T = np.tile(np.eye(4), (len(a), 1, 1))
-    for n, r in enumerate(a):
-        T[n, :3, :3] = quat_to_rot(r[4:8])
-        T[n, :3, 3] = r[1:4]
-    return Trajectory(a[:, 0], T)
+    return Trajectory(a[:, 0], poses_from_xyzq(a[:, 1:8]))
+
+
+def poses_from_xyzq(xyzq: np.ndarray) -> np.ndarray:
+    """(N, 7) rows 'x y z qx qy qz qw' -> (N, 4, 4) poses."""
+    T = np.tile(np.eye(4), (len(xyzq), 1, 1))
+    T[:, :3, :3], T[:, :3, 3] = quat_to_rot(xyzq[:, 3:7]), xyzq[:, :3]
+    return T
 
 
 def parse_pose(text: str) -> np.ndarray:
@@ -241,9 +244,7 @@ def parse_pose(text: str) -> np.ndarray:
         v = []
     if len(v) != 7 or pose_problem(v) is not None:
         raise ValueError(f"{text!r}: expected 'x y z qx qy qz qw', seven numbers with a non-zero quaternion")
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = quat_to_rot(v[3:]), v[:3]
-    return T
+    return poses_from_xyzq(np.array([v], np.float64))[0]
 
 
 @dataclass

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .datasets import Trajectory, quat_to_rot
+from .datasets import Trajectory, poses_from_xyzq
 
 Edge = tuple[str, str]  # (parent frame, child frame) as published
 
@@ -50,9 +50,7 @@ class TfTree:
     def track(self, edge: Edge) -> Trajectory:
         """The edge's transforms as poses (4x4) over time."""
         rows = self.rows(edge)
-        T = np.broadcast_to(np.eye(4), (len(rows), 4, 4)).copy()
-        T[:, :3, :3], T[:, :3, 3] = quat_to_rot(rows[:, 4:]), rows[:, 1:4]
-        return Trajectory(rows[:, 0].copy(), T)
+        return Trajectory(rows[:, 0].copy(), poses_from_xyzq(rows[:, 1:8]))
 
     def frames(self) -> set[str]:
         """Every frame the transforms name."""
