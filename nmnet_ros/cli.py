@@ -6,9 +6,11 @@ import argparse
 import importlib
 import math
 import os
+import signal
 import sys
 import warnings
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 # top-level packages that come from the ROS 2 wheels (x86_64 Linux) or a sourced ROS 2 installation
@@ -25,6 +27,25 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "make-bag": ("nmnet_ros.make_bag", "convert a sequence folder into a ROS 1 .bag, ROS 2 .db3 or .mcap"),
     "replay": ("nmnet_ros.replay", "run the front end over a bag, record outputs, evaluate against ground truth"),
 }
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised as Ctrl-C is: an interrupt no ``except Exception`` on the way swallows."""
+
+
+def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
+    raise Terminated()
+
+
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block SIGTERM (a service manager, ``timeout``, ``kill``) raises as Ctrl-C does, so the tools that
+    close their output on Ctrl-C do so on it too."""
+    old = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def bounded(kind: type, least: float, expected: str, strict: bool = False) -> Callable[[str], float]:

@@ -16,7 +16,7 @@ import numpy as np
 
 from .bags import BagError, typestore
 from .caminfo import info_fields
-from .cli import output_folder
+from .cli import output_folder, sigterm_as_interrupt
 from .datasets import FOLDERS_READ, DatasetError, Sequence
 from .imgconv import array_to_image_fields
 from .pairs import parse_seq_spec
@@ -106,29 +106,44 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
         writer = Writer2(out, version=9, storage_plugin=plugin)
     serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
     conns: dict[str, object] = {}
-    written = 0
+    written, interrupted = 0, False
     try:
         with writer:  # on an exception rosbags aborts: a ROS 2 bag without metadata.yaml, which nothing reads
-            for i in idx:
-                try:
-                    messages = _messages_for_frame(ts, seq, i, compressed, ros1)
-                except DatasetError as e:  # a truncated or missing image: the others are still a recording
-                    print(f"warning: frame {i}: skipped, {e}", file=sys.stderr)
-                    continue
-                for topic, mtype, msg in messages:
-                    if topic not in conns:
-                        conns[topic] = writer.add_connection(topic, mtype, typestore=ts)
-                    writer.write(conns[topic], int(round(float(seq.stamps[i]) * 1e9)), serialize(msg, mtype))
-                written += 1
+            try:
+                for i in idx:
+                    try:
+                        messages = _messages_for_frame(ts, seq, i, compressed, ros1)
+                    except DatasetError as e:  # a truncated or missing image: the others are still a recording
+                        print(f"warning: frame {i}: skipped, {e}", file=sys.stderr)
+                        continue
+                    for topic, mtype, msg in messages:
+                        if topic not in conns:
+                            conns[topic] = writer.add_connection(topic, mtype, typestore=ts)
+                        writer.write(conns[topic], int(round(float(seq.stamps[i]) * 1e9)), serialize(msg, mtype))
+                    written += 1
+            except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the bag is closed with the frames written so far
+                if not written:
+                    raise
+                interrupted = True
             if not written:
                 raise BagError(f"{seq.root}: none of the {len(idx)} frames could be read; no bag written")
-    except BaseException:  # Ctrl-C too: remove the partial output, so a rerun can write it
+    except BaseException:  # an error, or an interrupt before any frame: no partial output in a rerun's way
         if out.is_dir():
             shutil.rmtree(out, ignore_errors=True)
         else:
             out.unlink(missing_ok=True)
         raise
+    if interrupted:
+        raise Interrupted(written, len(idx))
     return written
+
+
+class Interrupted(KeyboardInterrupt):
+    """make-bag stopped by Ctrl-C or SIGTERM after ``written`` of ``total`` frames, its bag closed and readable."""
+
+    def __init__(self, written: int, total: int) -> None:
+        super().__init__(f"{written} of {total} frames written")
+        self.written, self.total = written, total
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -142,6 +157,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet make-bag``."""
     path, frames = parse_seq_spec(args.seq)
-    n = make_bag(path, args.out, args.format, args.compressed, frames)
+    try:
+        with sigterm_as_interrupt():
+            n = make_bag(path, args.out, args.format, args.compressed, frames)
+    except Interrupted as stop:
+        print(f"interrupted: wrote {stop.written} of {stop.total} frames to {args.out}, a readable bag", file=sys.stderr)
+        return 130
     print(f"wrote {n} frames to {args.out}")
     return 0

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import time
 from collections.abc import Callable
@@ -22,7 +21,7 @@ import numpy as np
 from .bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
-from .cli import bounded, file_path, not_a_folder, output_file, output_folder
+from .cli import bounded, file_path, not_a_folder, output_file, output_folder, sigterm_as_interrupt
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
@@ -36,14 +35,6 @@ from .tracks import TrackLengths
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
 STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
-
-
-class _Terminated(KeyboardInterrupt):
-    """SIGTERM, raised as Ctrl-C is: an interrupt no ``except Exception`` on the way swallows."""
-
-
-def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
-    raise _Terminated()
 
 
 def _gt_step(status: str, T_prev: np.ndarray | None, T_cur: np.ndarray | None
@@ -604,22 +595,21 @@ def main(args: argparse.Namespace) -> int:
     out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
     reading = {"camera": camera, "rectified": params["rectified"], "recorded": params["stamp_source"] == "arrival",
                "window": replay_window(args)}
-    old = signal.signal(signal.SIGTERM, _raise_terminated)
     runs, interrupted = [], False
-    try:
-        run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics, **reading)
-        runs.append(run)
-        if base_fe is not None:
-            base, _, _ = process_bag(reader, None, base_fe, truth, progress=not args.no_progress, topics=topics,
-                                     **reading, log=lambda _: None)  # the same frames: said once, by the first pass
-            base.name = "SIFT+ratio+MAGSAC++"
-            runs.append(base)
-    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (_Terminated)
-        interrupted = True
-        print("interrupted: closing the output file", file=sys.stderr)
-    finally:
-        out.close()
-        signal.signal(signal.SIGTERM, old)
+    with sigterm_as_interrupt():
+        try:
+            run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics, **reading)
+            runs.append(run)
+            if base_fe is not None:
+                base, _, _ = process_bag(reader, None, base_fe, truth, progress=not args.no_progress, topics=topics,
+                                         **reading, log=lambda _: None)  # the same frames: said once, by the first pass
+                base.name = "SIFT+ratio+MAGSAC++"
+                runs.append(base)
+        except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.Terminated)
+            interrupted = True
+            print("interrupted: closing the output file", file=sys.stderr)
+        finally:
+            out.close()
     if not runs:
         print(f"output: {args.out} ({out.count} messages)")
         return 130
@@ -700,22 +690,21 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     """Live mode: play into the node, record, score like the offline mode."""
     from .live import new_stats, play_live, recording_summary
 
-    old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.perf_counter()
     stats, interrupted = new_stats(), False  # filled as it plays: an interrupted replay sums up what it recorded
-    try:
-        recorded = params["stamp_source"] == "arrival"  # the player stamps frames as the bag recorded them; the node keeps it
-        node_args = live_node_args(args) + (["-p", "stamp_source:=header"] if recorded else [])
-        play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded,
-                  window=replay_window(args), stats=stats)
-    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (_Terminated)
-        interrupted = True
-        print("interrupted: closing the output file", file=sys.stderr)
-    finally:
-        out.close()
-        signal.signal(signal.SIGTERM, old)
-        for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
-            print(f"warning: {w}")
+    with sigterm_as_interrupt():
+        try:
+            recorded = params["stamp_source"] == "arrival"  # the player stamps frames as the bag recorded them; the node keeps it
+            node_args = live_node_args(args) + (["-p", "stamp_source:=header"] if recorded else [])
+            play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded,
+                      window=replay_window(args), stats=stats)
+        except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.Terminated)
+            interrupted = True
+            print("interrupted: closing the output file", file=sys.stderr)
+        finally:
+            out.close()
+            for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
+                print(f"warning: {w}")
     if not interrupted and (w := window_missed(replay_window(args), stats["published"])):
         print(f"warning: {w}")
     summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth), params, interrupted)

@@ -279,6 +279,29 @@ def test_a_folder_of_ros1_bag_parts_replays_as_one_recording(tmp_path):
     assert r.returncode == 0 and s["processed"] == 9 and s["scored_pairs"] == 8, (r.stderr, s)
 
 
+@pytest.mark.parametrize("fmt, out, sig", [("mcap", "bag", signal.SIGINT), ("ros1", "bag.bag", signal.SIGTERM)],
+                         ids=["mcap-SIGINT", "ros1-SIGTERM"])
+def test_an_interrupted_make_bag_leaves_a_readable_bag_of_the_frames_written(tmp_path, fmt, out, sig):
+    """Ctrl-C (or SIGTERM) during make-bag: the bag is closed with the frames written so far, readable, exit 130. It
+    removed the whole output (SIGTERM: left a ROS 2 bag without metadata.yaml, which nothing reads)."""
+    out = tmp_path / out
+    written = (out / "bag.mcap") if fmt == "mcap" else out
+    with open(tmp_path / "log", "w") as log:
+        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "make-bag", str(data_dir("kitti-07")), str(out),
+                                 "--format", fmt], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        t_end = time.monotonic() + 120
+        while not (written.exists() and written.stat().st_size > 4e6) and time.monotonic() < t_end and proc.poll() is None:
+            time.sleep(0.05)  # a few frames are in the file
+        assert proc.poll() is None, f"make-bag ended before it could be interrupted:\n{(tmp_path / 'log').read_text()}"
+        proc.send_signal(sig)
+        proc.wait(60)
+    said = (tmp_path / "log").read_text()
+    frames = len(list(BagReader(out).messages({"/camera/image_raw"})))
+    assert proc.returncode == 130 and "Traceback" not in said, said
+    assert 0 < frames < 160 and f"interrupted: wrote {frames} of 160 frames to {out}, a readable bag" in said, said
+
+
 def test_a_folder_of_images_given_as_a_bag_says_how_to_replay_or_score_it(tmp_path):
     """A sequence folder (or a EuRoC / KITTI download) given to replay was "directory holds no .mcap, .db3 or .bag
     file": it says what the folder is and the two commands that take it."""
