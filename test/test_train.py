@@ -183,6 +183,34 @@ def test_a_run_stopped_with_ctrl_c_leaves_a_calibrated_best_pt(tmp_path):
     assert not list(tmp_path.glob("*.tmp"))
 
 
+def test_a_run_stopped_by_sigterm_is_calibrated_as_one_stopped_by_ctrl_c(tmp_path):
+    """`timeout 300 nmnet train ...`, a job scheduler or `kill` end a run with SIGTERM, which killed it before the
+    calibration: best.pt kept the uncalibrated cut 0.5. SIGTERM is taken as Ctrl-C: calibrated, exit 130."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from .conftest import ROOT
+
+    seq = str(data_dir("strecha-fountain-p11"))
+    log = tmp_path / "log"
+    with open(log, "w") as fh:
+        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "train", "--train", f"{seq}:0-1", "--val", f"{seq}:2-3",
+                                 "--out", str(tmp_path / "run"), "--epochs", "500", "--steps-per-epoch", "1", "--batch", "2",
+                                 "--num-corr", "128", "--gaps", "1", "--max-val-pairs", "1", "--cache", str(tmp_path / "c")],
+                                cwd=ROOT, stdout=fh, stderr=subprocess.STDOUT, text=True)
+        t_end = time.monotonic() + 300
+        while "epoch 2/500" not in log.read_text() and time.monotonic() < t_end and proc.poll() is None:
+            time.sleep(0.1)
+        assert proc.poll() is None, log.read_text()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(120)
+    said = log.read_text()
+    assert proc.returncode == 130 and "interrupted: calibrating best.pt" in said and "Traceback" not in said, said
+    assert 0 < torch.load(tmp_path / "run" / "best.pt", map_location="cpu", weights_only=False)["score_threshold"] < 1
+
+
 def test_a_resume_compares_only_the_options_a_checkpoint_records():
     """last.pt written before it recorded the run's options resumes without the check (nothing to compare); a record
     says each changed option once, and not those a resume may change."""
