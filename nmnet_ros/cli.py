@@ -8,6 +8,7 @@ import math
 import os
 import signal
 import sys
+import threading
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -40,7 +41,10 @@ def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
 @contextmanager
 def sigterm_as_interrupt() -> Iterator[None]:
     """Within the block SIGTERM (a service manager, ``timeout``, ``kill``) raises as Ctrl-C does, so the tools that
-    close their output on Ctrl-C do so on it too."""
+    close their output on Ctrl-C do so on it too. Outside the main thread (where no handler can be set) it does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         yield
@@ -240,7 +244,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nmnet: error: name a command: {', '.join(SUBCOMMANDS)} (nmnet COMMAND --help)", file=sys.stderr)
         return 2
     try:
-        return importlib.import_module(args._module).main(args)
+        with sigterm_as_interrupt():  # the tools close their outputs (replay, make-bag) or calibrate (train) on either
+            return importlib.import_module(args._module).main(args)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

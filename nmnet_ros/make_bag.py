@@ -16,7 +16,7 @@ import numpy as np
 
 from .bags import BagError, typestore
 from .caminfo import info_fields
-from .cli import output_folder, sigterm_as_interrupt
+from .cli import output_folder
 from .datasets import FOLDERS_READ, DatasetError, Sequence
 from .imgconv import array_to_image_fields
 from .pairs import parse_seq_spec
@@ -158,9 +158,8 @@ def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet make-bag``."""
     path, frames = parse_seq_spec(args.seq)
     try:
-        with sigterm_as_interrupt():
-            n = make_bag(path, args.out, args.format, args.compressed, frames)
-    except Interrupted as stop:
+        n = make_bag(path, args.out, args.format, args.compressed, frames)
+    except Interrupted as stop:  # Ctrl-C, or SIGTERM (cli.main raises it as Ctrl-C)
         print(f"interrupted: wrote {stop.written} of {stop.total} frames to {args.out}, a readable bag", file=sys.stderr)
         return 130
     print(f"wrote {n} frames to {args.out}")

@@ -21,7 +21,7 @@ import numpy as np
 from .bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
-from .cli import bounded, file_path, not_a_folder, output_file, output_folder, sigterm_as_interrupt
+from .cli import bounded, file_path, not_a_folder, output_file, output_folder
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
@@ -596,20 +596,19 @@ def main(args: argparse.Namespace) -> int:
     reading = {"camera": camera, "rectified": params["rectified"], "recorded": params["stamp_source"] == "arrival",
                "window": replay_window(args)}
     runs, interrupted = [], False
-    with sigterm_as_interrupt():
-        try:
-            run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics, **reading)
-            runs.append(run)
-            if base_fe is not None:
-                base, _, _ = process_bag(reader, None, base_fe, truth, progress=not args.no_progress, topics=topics,
-                                         **reading, log=lambda _: None)  # the same frames: said once, by the first pass
-                base.name = "SIFT+ratio+MAGSAC++"
-                runs.append(base)
-        except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.Terminated)
-            interrupted = True
-            print("interrupted: closing the output file", file=sys.stderr)
-        finally:
-            out.close()
+    try:
+        run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics, **reading)
+        runs.append(run)
+        if base_fe is not None:
+            base, _, _ = process_bag(reader, None, base_fe, truth, progress=not args.no_progress, topics=topics,
+                                     **reading, log=lambda _: None)  # the same frames: said once, by the first pass
+            base.name = "SIFT+ratio+MAGSAC++"
+            runs.append(base)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.main raises it as Ctrl-C)
+        interrupted = True
+        print("interrupted: closing the output file", file=sys.stderr)
+    finally:
+        out.close()
     if not runs:
         print(f"output: {args.out} ({out.count} messages)")
         return 130
@@ -692,19 +691,18 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
 
     t0 = time.perf_counter()
     stats, interrupted = new_stats(), False  # filled as it plays: an interrupted replay sums up what it recorded
-    with sigterm_as_interrupt():
-        try:
-            recorded = params["stamp_source"] == "arrival"  # the player stamps frames as the bag recorded them; the node keeps it
-            node_args = live_node_args(args) + (["-p", "stamp_source:=header"] if recorded else [])
-            play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded,
-                      window=replay_window(args), stats=stats)
-        except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.Terminated)
-            interrupted = True
-            print("interrupted: closing the output file", file=sys.stderr)
-        finally:
-            out.close()
-            for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
-                print(f"warning: {w}")
+    try:
+        recorded = params["stamp_source"] == "arrival"  # the player stamps frames as the bag recorded them; the node keeps it
+        node_args = live_node_args(args) + (["-p", "stamp_source:=header"] if recorded else [])
+        play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded,
+                  window=replay_window(args), stats=stats)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.main raises it as Ctrl-C)
+        interrupted = True
+        print("interrupted: closing the output file", file=sys.stderr)
+    finally:
+        out.close()
+        for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
+            print(f"warning: {w}")
     if not interrupted and (w := window_missed(replay_window(args), stats["published"])):
         print(f"warning: {w}")
     summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth), params, interrupted)

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from .cache import FeatureCache
-from .cli import gaps, output_folder, progress, sigterm_as_interrupt, whole
+from .cli import gaps, output_folder, progress, whole
 from .datasets import FOLDERS_READ, LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
@@ -578,7 +578,6 @@ def main(args: argparse.Namespace) -> int:
     cfg = {k: getattr(args, k) for k in keys}
     cfg["init"] = str(args.init) if args.init else None
     cfg["gaps"] = args.gaps
-    with sigterm_as_interrupt():  # `timeout`, a scheduler or `kill` end a run as Ctrl-C does: best.pt calibrated
-        summary = train(args.train, args.val, args.out, cfg, resume=args.resume, cache_dir=args.cache)
+    summary = train(args.train, args.val, args.out, cfg, resume=args.resume, cache_dir=args.cache)
     print(json.dumps(summary, indent=1))
     return 0
