@@ -20,7 +20,7 @@ from rosbags.typesys.msg import get_types_from_msg
 from rosbags.typesys.store import Typestore
 
 from .caminfo import camera_from_info
-from .datasets import Trajectory, poses_from_xyzq
+from .datasets import BAG_SUFFIXES, Trajectory, is_sequence_folder, poses_from_xyzq
 from .dds import is_depth
 from .geometry import Camera, CameraError
 from .imgconv import IMAGE_TYPES, ImageError, decode_compressed, image_to_array
@@ -89,7 +89,7 @@ def _bag_files(path: Path, meta: dict | None) -> tuple[str, list[Path], list[str
     order (``meta``: :func:`_metadata`), else by name; or the .bag files of a folder (a ROS 1 recording split by
     ``rosbag record --split``)."""
     if not path.is_dir():
-        if path.suffix in (".mcap", ".db3", ".bag"):
+        if path.suffix in BAG_SUFFIXES:
             return path.suffix[1:], [path], []
         raise BagError(f"{path}: unknown bag type; expected a .bag, .db3 or .mcap file or a ROS 2 bag directory")
     for kind in ("mcap", "db3"):
@@ -117,10 +117,7 @@ def _bag_files(path: Path, meta: dict | None) -> tuple[str, list[Path], list[str
 
 def _images_folder_hint(path: Path) -> str:
     """What to do with a folder of images given as a bag (a sequence folder, a EuRoC or KITTI download), or ''."""
-    from . import asl, kitti
-
-    if not any((path / name).is_file() for name in ("images.txt", "rgb.txt", "camera.yaml")) and \
-            asl.camera_folder(path) is None and kitti.image_folder(path) is None:
+    if not is_sequence_folder(path):
         return ""
     return (f"; it is a folder of images with their poses: `nmnet make-bag {path} OUT.mcap` writes it as a bag to "
             f"replay, `nmnet eval {path}` scores its pairs directly")

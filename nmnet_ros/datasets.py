@@ -342,6 +342,14 @@ _BAG_HINT = ("this is a recording (a bag), which nmnet replay scores against its
              "o.mcap --json s.json`); nmnet eval and train read sequence folders")
 
 
+def is_sequence_folder(root: Path) -> bool:
+    """Whether ``root`` is laid out as a folder :meth:`Sequence.load` reads (ours, TUM's, EuRoC's or KITTI's)."""
+    from . import asl, kitti
+
+    return any((root / name).is_file() for name in ("camera.yaml", "images.txt", "rgb.txt")) or \
+        asl.camera_folder(root) is not None or kitti.image_folder(root) is not None
+
+
 def _other_layout(root: Path) -> str | None:
     """What to do with a folder of another benchmark's layout (or a bag's folder) that lacks camera.yaml, or None."""
     if (root / "metadata.yaml").is_file() or any(p.suffix in BAG_SUFFIXES for p in root.iterdir()):
@@ -441,9 +449,9 @@ class Sequence:
 
         camera, cam0_to_camera = kitti.camera_and_baseline(kitti.projection(root / "calib.txt", images))
         stamps, paths = kitti.read_frames(root, images)
-        truth = kitti.read_poses(kitti.poses_file(root), stamps, cam0_to_camera)
-        return cls._of_layout(root, camera, stamps, paths, truth,
-                              (root / "calib.txt", kitti.poses_file(root), root / "times.txt"))
+        poses = kitti.poses_file(root)
+        return cls._of_layout(root, camera, stamps, paths, kitti.read_poses(poses, stamps, cam0_to_camera),
+                              (root / "calib.txt", poses, root / "times.txt"))
 
     @classmethod
     def _of_layout(cls, root: Path, camera: Camera, stamps: np.ndarray, paths: list[Path], truth: Trajectory | None,
