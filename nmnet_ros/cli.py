@@ -52,6 +52,23 @@ def sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, old)
 
 
+@contextmanager
+def interrupts_between_steps() -> Iterator[Callable[[], bool]]:
+    """Within the block Ctrl-C and SIGTERM set a flag, read by the function yielded, instead of raising: a loop that
+    asks it stops between its steps, never inside one (a bag's frame half written). Outside the main thread (where
+    no handler can be set) the flag is never set."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    signals: list[int] = []
+    old = {s: signal.signal(s, lambda signum, _frame: signals.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield lambda: bool(signals)
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+
+
 def bounded(kind: type, least: float, expected: str, strict: bool = False) -> Callable[[str], float]:
     """An argparse type: a finite number of ``kind`` (int or float) at least ``least``, above it when ``strict``;
     otherwise argparse's error names the option, the value and what was ``expected``."""

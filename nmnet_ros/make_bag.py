@@ -16,7 +16,7 @@ import numpy as np
 
 from .bags import BagError, typestore
 from .caminfo import info_fields
-from .cli import output_folder
+from .cli import interrupts_between_steps, output_folder
 from .datasets import FOLDERS_READ, DatasetError, Sequence
 from .imgconv import array_to_image_fields
 from .pairs import parse_seq_spec
@@ -104,27 +104,9 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
 
         plugin = StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3
         writer = Writer2(out, version=9, storage_plugin=plugin)
-    serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
-    conns: dict[str, object] = {}
-    written, interrupted = 0, False
     try:
         with writer:  # on an exception rosbags aborts: a ROS 2 bag without metadata.yaml, which nothing reads
-            try:
-                for i in idx:
-                    try:
-                        messages = _messages_for_frame(ts, seq, i, compressed, ros1)
-                    except DatasetError as e:  # a truncated or missing image: the others are still a recording
-                        print(f"warning: frame {i}: skipped, {e}", file=sys.stderr)
-                        continue
-                    for topic, mtype, msg in messages:
-                        if topic not in conns:
-                            conns[topic] = writer.add_connection(topic, mtype, typestore=ts)
-                        writer.write(conns[topic], int(round(float(seq.stamps[i]) * 1e9)), serialize(msg, mtype))
-                    written += 1
-            except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the bag is closed with the frames written so far
-                if not written:
-                    raise
-                interrupted = True
+            written, interrupted = _write_frames(writer, ts, seq, idx, compressed, ros1)
             if not written:
                 raise BagError(f"{seq.root}: none of the {len(idx)} frames could be read; no bag written")
     except BaseException:  # an error, or an interrupt before any frame: no partial output in a rerun's way
@@ -136,6 +118,32 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
     if interrupted:
         raise Interrupted(written, len(idx))
     return written
+
+
+def _write_frames(writer, ts, seq: Sequence, idx: list[int], compressed: bool, ros1: bool) -> tuple[int, bool]:
+    """Write each frame's messages; (frames written, interrupted). A frame that cannot be read is skipped, named (the
+    others are still a recording); Ctrl-C or SIGTERM ends the loop between two frames (one could land between a frame's
+    image and its pose), so the bag closes with whole frames; before any frame, it is raised."""
+    serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
+    conns: dict[str, object] = {}
+    written = 0
+    with interrupts_between_steps() as stop_requested:
+        for i in idx:
+            if stop_requested():
+                if not written:
+                    raise KeyboardInterrupt
+                return written, True
+            try:
+                messages = _messages_for_frame(ts, seq, i, compressed, ros1)
+            except DatasetError as e:
+                print(f"warning: frame {i}: skipped, {e}", file=sys.stderr)
+                continue
+            for topic, mtype, msg in messages:
+                if topic not in conns:
+                    conns[topic] = writer.add_connection(topic, mtype, typestore=ts)
+                writer.write(conns[topic], int(round(float(seq.stamps[i]) * 1e9)), serialize(msg, mtype))
+            written += 1
+    return written, False
 
 
 class Interrupted(KeyboardInterrupt):
