@@ -339,6 +339,17 @@ def test_a_euroc_asl_download_reads_as_it_is(tmp_path):
     (cam0 / "sensor.yaml").write_text(EUROC_SENSOR_YAML.replace("0.0, 0.0, 0.0, 1.0]", "0.0, 0.0, 0.0]"))
     with pytest.raises(DatasetError, match=f"{cam0 / 'sensor.yaml'}: no T_BS .* 16 numbers"):
         Sequence.load(mav.parent)
+    (cam0 / "sensor.yaml").write_text(EUROC_SENSOR_YAML.replace("[0.0148655429818,", "[0.5,"))
+    with pytest.raises(DatasetError, match=f"{cam0 / 'sensor.yaml'}: T_BS is not a rigid transform"):
+        Sequence.load(mav.parent)
+    (cam0 / "sensor.yaml").write_text(EUROC_SENSOR_YAML)
+    (mav / "state_groundtruth_estimate0" / "data.csv").write_text(truth[0] + "\n")
+    with pytest.raises(DatasetError, match="state_groundtruth_estimate0/data.csv: no poses"):
+        Sequence.load(mav.parent)
+    (cam0 / "data.csv").write_text(listing[0] + "\n")
+    with pytest.raises(DatasetError, match=f"{cam0 / 'data.csv'}: no frames listed"):
+        Sequence.load(mav.parent)
+    (cam0 / "data.csv").write_text("\n".join(listing) + "\n")
     (cam0 / "sensor.yaml").write_text(EUROC_SENSOR_YAML)
     (mav / "state_groundtruth_estimate0" / "data.csv").write_text(truth[0] + "\n" + truth[1].replace(",", ";") + "\n")
     with pytest.raises(DatasetError, match=r"state_groundtruth_estimate0/data.csv:2: expected 'timestamp \[ns\], p_RS_R"):
@@ -391,6 +402,9 @@ def test_a_kitti_odometry_download_reads_as_it_is(tmp_path):
 
     poses.write_text(poses.read_text().split("\n", 1)[1])  # a line short: another sequence's file?
     with pytest.raises(DatasetError, match=f"{poses}: 11 poses for 12 frames of times.txt"):
+        Sequence.load(root)
+    (root / "times.txt").write_text("")
+    with pytest.raises(DatasetError, match=f"{root / 'times.txt'}: no frames listed"):
         Sequence.load(root)
     (root / "calib.txt").write_text("P0: 1 0 0\n")
     with pytest.raises(DatasetError, match=f"{root / 'calib.txt'}: no 'P2:' line, the projection of image_2's camera"):
