@@ -39,34 +39,35 @@ def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
 
 
 @contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """Within the block SIGTERM (a service manager, ``timeout``, ``kill``) raises as Ctrl-C does, so the tools that
-    close their output on Ctrl-C do so on it too. Outside the main thread (where no handler can be set) it does nothing."""
+def _signals_handled(signums: tuple[int, ...], handler: Callable) -> Iterator[None]:
+    """``handler`` for ``signums`` within the block, the previous handlers after it. Outside the main thread (where no
+    handler can be set) nothing changes."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.signal(signal.SIGTERM, _raise_terminated)
+    old = {s: signal.signal(s, handler) for s in signums}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for s, previous in old.items():
+            signal.signal(s, previous)
+
+
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block SIGTERM (a service manager, ``timeout``, ``kill``) raises as Ctrl-C does, so the tools that
+    close their output on Ctrl-C do so on it too."""
+    with _signals_handled((signal.SIGTERM,), _raise_terminated):
+        yield
 
 
 @contextmanager
 def interrupts_between_steps() -> Iterator[Callable[[], bool]]:
     """Within the block Ctrl-C and SIGTERM set a flag, read by the function yielded, instead of raising: a loop that
-    asks it stops between its steps, never inside one (a bag's frame half written). Outside the main thread (where
-    no handler can be set) the flag is never set."""
-    if threading.current_thread() is not threading.main_thread():
-        yield lambda: False
-        return
+    asks it stops between its steps, never inside one (a bag's frame half written)."""
     signals: list[int] = []
-    old = {s: signal.signal(s, lambda signum, _frame: signals.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with _signals_handled((signal.SIGINT, signal.SIGTERM), lambda signum, _frame: signals.append(signum)):
         yield lambda: bool(signals)
-    finally:
-        for s, handler in old.items():
-            signal.signal(s, handler)
 
 
 def bounded(kind: type, least: float, expected: str, strict: bool = False) -> Callable[[str], float]:
