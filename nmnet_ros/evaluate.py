@@ -21,41 +21,15 @@ import numpy as np
 from .bf16 import PRECISIONS
 from .cache import FeatureCache
 from .cli import file_path, gaps, output_file, progress, whole
-from .datasets import FOLDERS_READ, Sequence
+from .datasets import FOLDERS_READ
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
 from .model import NEIGHBORS, load_model
 from .model_fast import precision_note
-from .pairs import PairData, make_pair, no_pairs_reason, parse_seq_spec, select_pairs, shared_frames, to_correspondences
+from .pairs import PairData, load_pairs, shared_frames, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, ROBUST, build
-
-
-def load_eval_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, stride: int = 1,
-                    max_pairs: int | None = None, tool: str = "eval") -> list[PairData]:
-    """Pairs of every 'PATH[:a-b]' (pairs.txt's, within a-b, when present), with the folder's notes, or why it has
-    none; ``tool`` names the command in the progress lines (eval, neighbors)."""
-    pairs = []
-    for spec in specs:
-        path, frames = parse_seq_spec(spec)
-        seq = Sequence.load(path)
-        for note in seq.notes():
-            print(f"warning: {note}", file=sys.stderr)
-        chosen = select_pairs(seq, gaps, frames)
-        if not chosen:
-            raise ValueError(f"no pairs to evaluate: {no_pairs_reason(seq, spec, gaps, frames)}")
-        if seq.pairs_file is None:
-            chosen = [(i, j) for i, j in chosen if i % stride == 0]
-        if not chosen:
-            raise ValueError(f"no pairs to evaluate: {spec}: none of its pairs starts at a multiple of --stride {stride} "
-                             "(give a smaller one)")
-        if max_pairs and len(chosen) > max_pairs:
-            chosen = [chosen[k] for k in np.linspace(0, len(chosen) - 1, max_pairs).round().astype(int)]
-        t0 = time.perf_counter()
-        pairs += [make_pair(seq, i, j, cache) for i, j in progress(chosen, f"features {seq.name}", "pair")]
-        print(f"{tool}: {seq.name}: {len(chosen)} pairs ready in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
-    return pairs
 
 
 def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
@@ -268,7 +242,7 @@ def main(args: argparse.Namespace) -> int:
         labels = list(args.seqs)
     pairs, groups = [], []
     for spec, label in zip(args.seqs, labels, strict=True):
-        chosen = load_eval_pairs([spec], args.gaps, cache, args.stride, args.max_pairs)
+        chosen = load_pairs([spec], args.gaps, cache, stride=args.stride, max_pairs=args.max_pairs)
         pairs += chosen
         groups += [label] * len(chosen)
     res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px,

@@ -16,9 +16,8 @@ from .cache import FeatureCache
 from .cli import file_path, gaps, output_file, whole
 from .datasets import FOLDERS_READ
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
-from .evaluate import load_eval_pairs
 from .neighbors import compatibility_neighbors, spatial_neighbors
-from .pairs import PairData
+from .pairs import PairData, load_pairs
 
 BUCKETS = ((0, 20), (20, 35), (35, 50), (50, 101))
 
@@ -70,7 +69,7 @@ def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet neighbors``."""
     output_file(args.json, "--json", "neighbors.json")
     cache = FeatureCache(make_detector(args.detector), args.cache)
-    pairs = load_eval_pairs(args.seqs, args.gaps, cache, args.stride, tool="neighbors")  # eval's pairs, notes, reasons
+    pairs = load_pairs(args.seqs, args.gaps, cache, stride=args.stride, tool="neighbors")  # eval's pairs, notes, reasons
     res = study(pairs, args.k)
     print("| pair inlier ratio | pairs | compatibility nbrs inlier % | spatial kNN inlier % |")
     print("|---|---|---|---|")

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import re
+import sys
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -10,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .cache import FeatureCache
+from .cli import progress
 from .datasets import LABEL_THRESHOLD, Sequence, epipolar_labels, has_baseline
 from .features import Features
 from .matching import Matches, match_descriptors
@@ -96,6 +100,50 @@ def make_pair(seq: Sequence, i: int, j: int, cache: FeatureCache, match_config: 
     labels, _ = epipolar_labels(seq, i, j, k0, k1, label_threshold)
     R, t = seq.relative_pose(i, j)
     return PairData(seq, i, j, f0, f1, m, labels, R, t)
+
+
+def _to_stderr(line: str) -> None:
+    print(line, file=sys.stderr)
+
+
+def load_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, *, stride: int = 1,
+               max_pairs: int | None = None, min_inliers: int = 0, label_threshold: float = LABEL_THRESHOLD,
+               skip_empty: bool = False, log: Callable[[str], None] = _to_stderr, tool: str = "eval") -> list[PairData]:
+    """Labelled pairs of every 'PATH[:a-b]', the one loader of eval, train and the studies.
+
+    pairs.txt's pairs (within a-b) when the folder has one, else every ``stride``-th frame's pairs at ``gaps``; at
+    most ``max_pairs`` per folder, spread evenly; pairs with fewer than ``min_inliers`` labelled inliers dropped.
+    The folder's notes go to ``log`` as warnings, then one line per folder naming ``tool``. A folder without pairs
+    is a ValueError saying why, or with ``skip_empty`` (training: other folders may have pairs) is a warning.
+    """
+    pairs = []
+    for spec in specs:
+        path, frames = parse_seq_spec(spec)
+        seq = Sequence.load(path)
+        for note in seq.notes():
+            log(f"warning: {note}")
+        chosen = select_pairs(seq, gaps, frames)
+        if seq.pairs_file is None and chosen and not (chosen := [(i, j) for i, j in chosen if i % stride == 0]):
+            raise ValueError(f"no pairs to evaluate: {spec}: none of its pairs starts at a multiple of --stride {stride} "
+                          "(give a smaller one)")
+        if not chosen and skip_empty:
+            log(f"warning: {no_pairs_reason(seq, spec, gaps, frames)}")
+            continue
+        if not chosen:
+            raise ValueError(f"no pairs to evaluate: {no_pairs_reason(seq, spec, gaps, frames)}")
+        if max_pairs and len(chosen) > max_pairs:
+            chosen = [chosen[k] for k in np.linspace(0, len(chosen) - 1, max_pairs).round().astype(int)]
+        t0 = time.perf_counter()
+        made = [make_pair(seq, i, j, cache, label_threshold=label_threshold)
+                for i, j in progress(chosen, f"features {seq.name}", "pair")]  # minutes on a fresh cache
+        kept = [p for p in made if p.labels.sum() >= min_inliers]
+        dropped = (f" (of {len(made)}; {len(made) - len(kept)} with fewer than {min_inliers} inliers dropped)"
+                   if len(kept) < len(made) else "")
+        ratio = 100 * np.mean([p.labels.mean() for p in kept]) if kept else 0.0
+        log(f"{tool}: {Path(spec).name}: {len(kept)} pairs{dropped}, mean inlier ratio {ratio:.1f}%, ready in "
+            f"{time.perf_counter() - t0:.0f} s")
+        pairs += kept
+    return pairs
 
 
 def parse_seq_spec(spec: str) -> tuple[str, range | None]:

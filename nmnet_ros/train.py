@@ -28,14 +28,14 @@ import numpy as np
 import torch
 
 from .cache import FeatureCache
-from .cli import gaps, output_folder, progress, whole
+from .cli import gaps, output_folder, whole
 from .datasets import FOLDERS_READ, LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
 from .metrics import prf
 from .model import NEIGHBORS, NMNet, WeightsError, load_model, network_input
 from .neighbors import mine_neighbors
-from .pairs import PairData, make_pair, no_pairs_reason, parse_seq_spec, select_pairs, shared_frames
+from .pairs import PairData, load_pairs, parse_seq_spec, shared_frames
 
 DEFAULT_CONFIG: dict = {
     "variant": "nmnet",  # or "nmnet-sp"
@@ -66,27 +66,11 @@ MIN_THINNED_RATIO = 0.05  # lowest inlier ratio a thinned sample is given
 MAX_TURN_DEG = 60.0  # --turn-deg above this would turn most views out of the image
 
 
-def load_pairs(specs: list[str], cache: FeatureCache, gaps: tuple[int, ...], min_inliers: int,
-               log: Callable[[str], None] = print, label_threshold: float = LABEL_THRESHOLD) -> list[PairData]:
-    """Labelled pairs from 'PATH[:a-b]' specs, dropping pairs with almost no inliers."""
-    out = []
-    for spec in specs:
-        path, frames = parse_seq_spec(spec)
-        seq = Sequence.load(path)
-        for note in seq.notes():
-            log(f"  warning: {note}")
-        chosen = select_pairs(seq, gaps, frames)
-        if not chosen:
-            log(f"  warning: {no_pairs_reason(seq, spec, gaps, frames)}")
-        t0 = time.perf_counter()
-        made = (make_pair(seq, i, j, cache, label_threshold=label_threshold)
-                for i, j in progress(chosen, f"features {seq.name}", "pair"))  # minutes on a fresh cache
-        kept = [p for p in made if p.labels.sum() >= min_inliers]
-        ratio = np.mean([p.labels.mean() for p in kept]) if kept else 0.0
-        log(f"  {spec}: {len(kept)} pairs (of {len(chosen)}), mean inlier ratio {100 * ratio:.1f}%, "
-            f"ready in {time.perf_counter() - t0:.0f} s")
-        out.extend(kept)
-    return out
+def _labelled_pairs(specs: list[str], cache: FeatureCache, c: dict, log: Callable[[str], None]) -> list[PairData]:
+    """The pairs of ``specs`` with this run's gaps and labels, those with almost no inliers dropped; a folder without
+    pairs is a warning (another may have some)."""
+    return load_pairs(specs, tuple(c["gaps"]), cache, min_inliers=c["min_inliers"], label_threshold=c["label_threshold"],
+                      skip_empty=True, log=lambda line: log(f"  {line}"), tool="train")
 
 
 def pair_weights(group_sizes: list[int], balance: float) -> np.ndarray | None:
@@ -461,12 +445,12 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     output_folder(out_dir, "--out", "the checkpoints")  # before minutes of features
     cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
-    groups = [load_pairs([spec], cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"]) for spec in train_specs]
+    groups = [_labelled_pairs([spec], cache, c, log) for spec in train_specs]
     train_pairs = [p for g in groups for p in g]
     if not train_pairs:  # before the validation folders' features
         raise ValueError("no training pairs: check the sequence folders and frame ranges")
     log("loading validation pairs")
-    val_pairs = load_pairs(val_specs, cache, tuple(c["gaps"]), c["min_inliers"], log, c["label_threshold"])
+    val_pairs = _labelled_pairs(val_specs, cache, c, log)
     if not val_pairs:  # trained, then failed with '[Errno 2] best.pt' at the end of the first epoch (val F nan)
         raise ValueError("no validation pairs: check the --val folders and frame ranges (validation picks best.pt "
                          "and calibrates the score threshold)")

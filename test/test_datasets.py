@@ -35,19 +35,19 @@ def test_eval_and_neighbors_say_why_a_folder_gives_no_pairs(tmp_path, capsys):
     for the gaps and a --stride past the range alike; it names which, as train does, before any features."""
     from nmnet_ros.cache import FeatureCache
     from nmnet_ros.detectors import make_detector
-    from nmnet_ros.evaluate import load_eval_pairs
+    from nmnet_ros.pairs import load_pairs
 
     cache = FeatureCache(make_detector("sift"), tmp_path)
     euroc, kitti = data_dir("euroc-v101-cam0"), data_dir("kitti-07")
     with pytest.raises(ValueError, match=f"^no pairs to evaluate: {euroc}: none of its 187 frame pairs \\(gaps 1,2\\) "
                                          "has a ground-truth pose on both frames, motion between them"):
-        load_eval_pairs([str(euroc)], (1, 2), cache)
+        load_pairs([str(euroc)], (1, 2), cache)
     with pytest.raises(ValueError, match=f"{kitti}:3-4: its frames make no pairs \\(gaps 3\\)$"):
-        load_eval_pairs([f"{kitti}:3-4"], (3,), cache)
+        load_pairs([f"{kitti}:3-4"], (3,), cache)
     with pytest.raises(ValueError, match=f"{kitti}:3-5: none of its pairs starts at a multiple of --stride 5"):
-        load_eval_pairs([f"{kitti}:3-5"], (1,), cache, stride=5)
+        load_pairs([f"{kitti}:3-5"], (1,), cache, stride=5)
     assert not any(tmp_path.iterdir())  # no features computed
-    assert len(load_eval_pairs([f"{kitti}:3-5"], (1,), cache, stride=2)) == 1  # (4, 5)
+    assert len(load_pairs([f"{kitti}:3-5"], (1,), cache, stride=2)) == 1  # (4, 5)
     from nmnet_ros.cli import main  # nmnet neighbors printed an empty table, "0 pairs", exit 0
 
     assert main(["neighbors", str(euroc), "--gaps", "1", "--detector", "sift", "--cache", str(tmp_path)]) == 2
@@ -194,9 +194,8 @@ def test_frames_the_ground_truth_does_not_cover_are_left_out_not_given_another_f
     pose, its pairs are not selected for eval/train, a bag made from the folder has no ground truth for it, and a
     file whose stamps match no image is refused, naming it."""
     from nmnet_ros.bags import BagReader
-    from nmnet_ros.evaluate import load_eval_pairs
     from nmnet_ros.make_bag import TOPICS, make_bag
-    from nmnet_ros.train import load_pairs
+    from nmnet_ros.pairs import load_pairs
 
     src = data_dir("strecha-entry-p10")
     dst = tmp_path / "entry"
@@ -213,10 +212,10 @@ def test_frames_the_ground_truth_does_not_cover_are_left_out_not_given_another_f
     assert make_bag(dst, tmp_path / "bag", "mcap", frames=range(3, 6)) == 3
     assert len(list(BagReader(tmp_path / "bag").messages({TOPICS["gt"]}))) == 2  # frames 3 and 5
     assert "1 of 10 frames have no pose" in (err := capsys.readouterr().err) and "written without a ground-truth" in err
-    pairs = load_eval_pairs([f"{dst}:3-5"], (1, 2), cache)  # nmnet eval says so, and evaluates (3, 5) only
+    pairs = load_pairs([f"{dst}:3-5"], (1, 2), cache)  # nmnet eval says so, and evaluates (3, 5) only
     assert [(p.i, p.j) for p in pairs] == [(3, 5)] and "1 of 10 frames have no pose" in capsys.readouterr().err
     logs: list[str] = []  # nmnet train likewise, through its log
-    pairs = load_pairs([f"{dst}:3-5"], cache, (1, 2), min_inliers=5, log=logs.append)
+    pairs = load_pairs([f"{dst}:3-5"], (1, 2), cache, min_inliers=5, skip_empty=True, log=logs.append)
     assert [(p.i, p.j) for p in pairs] == [(3, 5)] and "1 of 10 frames have no pose" in logs[0], logs
 
     (dst / "groundtruth.txt").write_text("\n".join(f"{1000 + float(r.split()[0])} {r.split(maxsplit=1)[1]}" for r in rows))

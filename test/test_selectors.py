@@ -496,12 +496,12 @@ def test_eval_outputs_are_checked_before_the_evaluation_and_written_where_asked(
            "ratio,oracle", "--cache", str(cache.root)]
     bad = subprocess.run(cmd + ["--plot", str(tmp_path)], capture_output=True, text=True)  # a folder
     assert bad.returncode == 2 and f"--plot {tmp_path} is a folder: give a file name" in bad.stderr, bad.stderr
-    assert "pairs ready" not in bad.stderr  # said before any feature was loaded
+    assert "ready in" not in bad.stderr  # said before any feature was loaded
     plot, out = tmp_path / "new" / "curves", tmp_path / "other" / "eval.json"  # folders not there yet; no suffix
     run = subprocess.run(cmd + ["--plot", str(plot), "--json", str(out)], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and set(json.loads(out.read_text())) == {"ratio", "oracle"}
-    assert "eval: kitti-07: 2 pairs ready in" in run.stderr and "eval: oracle: 2 pairs x 1 run(s) in" in run.stderr
+    assert "eval: kitti-07:120-122: 2 pairs, mean inlier ratio" in run.stderr and "eval: oracle: 2 pairs x 1 run(s) in" in run.stderr
     afile = tmp_path / "afile"
     afile.write_text("")
     bad = subprocess.run(cmd + ["--plot", str(afile / "c.png")], capture_output=True, text=True)  # under a file

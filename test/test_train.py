@@ -17,7 +17,7 @@ from nmnet_ros.model import DEFAULT_CONFIG as MODEL_CONFIG
 from nmnet_ros.model import load_model, weights_dir
 from nmnet_ros.neighbor_study import add_arguments as neighbors_args
 from nmnet_ros.neighbors import mine_neighbors
-from nmnet_ros.pairs import shared_frames
+from nmnet_ros.pairs import load_pairs, shared_frames
 from nmnet_ros.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
 from nmnet_ros.train import (
     DEFAULT_CONFIG,
@@ -27,7 +27,6 @@ from nmnet_ros.train import (
     draw_sample,
     draw_turn,
     essential_loss,
-    load_pairs,
     options_changed,
     pair_input,
     pair_weights,
@@ -83,7 +82,8 @@ def test_train_few_steps_then_resume(tmp_path):
     s = train(spec_train, spec_val, tmp_path, cfg, resume=True, cache_dir=tmp_path / "cache", log=said.append)
     assert s["train_pairs"] == 1 and s["val_pairs"] == 1 and "does not exist yet, so this is a new run" in said[0]
     assert not any("warning" in line for line in said), said  # frames 0-1 and 2-3: validation apart from training
-    assert any(line.startswith(f"  {spec_train[0]}: 1 pairs (of 1)") and "ready in" in line for line in said), said
+    assert any(line.startswith("  train: strecha-fountain-p11:0-1: 1 pairs, mean inlier ratio") and "ready in" in line
+               for line in said), said
     model = load_model(tmp_path / "best.pt")
     assert not model.training
     best = (tmp_path / "best.pt").read_bytes()
@@ -136,10 +136,15 @@ def test_fine_tune_from_shipped_weights_on_the_fast_detector(tmp_path):
 def test_stricter_label_threshold_keeps_a_subset_of_the_inliers(tmp_path):
     cache = FeatureCache(make_detector("hessian-affine-fast"), tmp_path)
     spec = [f"{data_dir('strecha-fountain-p11')}:0-2"]
-    loose = load_pairs(spec, cache, (1,), 5, log=lambda _: None)
-    strict = load_pairs(spec, cache, (1,), 5, log=lambda _: None, label_threshold=1e-5)
+    loose = load_pairs(spec, (1,), cache, min_inliers=5, log=lambda _: None)
+    strict = load_pairs(spec, (1,), cache, min_inliers=5, log=lambda _: None, label_threshold=1e-5)
     for a, b in zip(loose, strict, strict=True):
         assert 0 < b.labels.sum() < a.labels.sum() and not (b.labels & ~a.labels).any()
+    said: list[str] = []  # a pair with almost no inliers is dropped, and the count says so
+    fewest = min(int(p.labels.sum()) for p in loose)
+    kept = load_pairs(spec, (1,), cache, min_inliers=fewest + 1, log=said.append, tool="train")
+    assert len(kept) == len(loose) - 1 and said[-1].startswith(
+        f"train: strecha-fountain-p11:0-2: {len(kept)} pairs (of {len(loose)}; 1 with fewer than {fewest + 1} inliers dropped), mean")
 
 
 @pytest.mark.parametrize(("init", "match"), [("missing.pt", "--init .*missing.pt: weights file not found"),
@@ -268,7 +273,7 @@ def test_option_out_of_range_is_a_clear_error(tmp_path, key, value, match):
 
 def _fountain_pair(tmp_path):
     cache = FeatureCache(make_detector("hessian-affine-fast"), tmp_path)
-    return load_pairs([f"{data_dir('strecha-fountain-p11')}:0-1"], cache, (1,), 5, log=lambda _: None)[0]
+    return load_pairs([f"{data_dir('strecha-fountain-p11')}:0-1"], (1,), cache, min_inliers=5, log=lambda _: None)[0]
 
 
 def _plane_map(mirror: bool, roll: float) -> np.ndarray:
@@ -503,8 +508,9 @@ def test_a_folder_whose_pairs_all_lack_motion_says_why_it_gives_none(tmp_path):
     """EuRoC's excerpt (the MAV still on the ground) gave '0 pairs (of 0)' and then 'no training pairs', no reason."""
     said: list[str] = []
     euroc = str(data_dir("euroc-v101-cam0"))
-    assert load_pairs([euroc], FeatureCache(make_detector("sift"), tmp_path), (1, 2), 5, said.append) == []
-    assert said[0] == (f"  warning: {euroc}: none of its 187 frame pairs (gaps 1,2) has a ground-truth pose on both "
+    assert load_pairs([euroc], (1, 2), FeatureCache(make_detector("sift"), tmp_path), min_inliers=5, skip_empty=True,
+                      log=said.append) == []
+    assert said[0] == (f"warning: {euroc}: none of its 187 frame pairs (gaps 1,2) has a ground-truth pose on both "
                        "frames, motion between them (epipolar labels need a baseline) and views within 40 degrees")
     assert not any(tmp_path.iterdir())  # no features computed for it
 

@@ -19,11 +19,10 @@ import numpy as np
 
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
-from nmnet_ros.evaluate import load_eval_pairs
 from nmnet_ros.geometry import pose_auc, pose_error_deg, sampson_px
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
-from nmnet_ros.pairs import to_correspondences
+from nmnet_ros.pairs import load_pairs, to_correspondences
 from nmnet_ros.selectors import DEFAULT_CONFIG, build, classic_mask, nmnet_scores
 
 
@@ -41,7 +40,7 @@ def main() -> None:
     for spec in specs:
         errors: dict[str, list] = {s: [] for s in subsets}
         stats: dict[str, list] = {k: [] for k in ("flow", "centre", "ratio", "sampson")}
-        for p in load_eval_pairs([spec], tuple(range(1, 11)), cache):
+        for p in load_pairs([spec], tuple(range(1, 11)), cache):
             c = to_correspondences(p)
             _, scores, selected = nmnet_scores(model, c, DEFAULT_CONFIG)
             inl = c.labels

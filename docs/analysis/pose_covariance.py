@@ -26,8 +26,7 @@ import numpy as np
 
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import DEFAULT_DETECTOR, make_detector
-from nmnet_ros.evaluate import load_eval_pairs
-from nmnet_ros.pairs import to_correspondences
+from nmnet_ros.pairs import load_pairs, to_correspondences
 from nmnet_ros.posemsg import DIR_SIGMA, REF_MATCHES, ROT_SIGMA_RAD
 from nmnet_ros.selectors import build
 
@@ -81,8 +80,8 @@ def main() -> None:
     d = args.data
     train_specs = args.train or [f"{d}/strecha-fountain-p11", f"{d}/strecha-entry-p10", f"{d}/kitti-07:0-119"]
     val_specs = args.val or [f"{d}/kitti-07:120-159", f"{d}/strecha-herz-jesus-p25"]
-    train = load_eval_pairs(train_specs, tuple(range(1, 11)), cache, max_pairs=args.max_pairs)
-    val = load_eval_pairs(val_specs, tuple(range(1, 11)), cache)
+    train = load_pairs(train_specs, tuple(range(1, 11)), cache, max_pairs=args.max_pairs)
+    val = load_pairs(val_specs, tuple(range(1, 11)), cache)
     rot, trans, n, failed = errors(train)
     a_rot, a_dir = spread(rot, n), spread(trans, n)
     print(f"training: {len(n)} poses ({failed} failures > {FAILED_DEG:g} deg left out), selected matches median {np.median(n):.0f}")

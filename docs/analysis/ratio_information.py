@@ -22,13 +22,14 @@ from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
 from nmnet_ros.metrics import prf
 from nmnet_ros.model import NMNet, load_model
-from nmnet_ros.train import load_pairs, pair_input
+from nmnet_ros.pairs import load_pairs
+from nmnet_ros.train import pair_input
 
 
 def scored(model: NMNet, specs: list[str], cache: FeatureCache, gaps: tuple[int, ...]) -> list[tuple]:
     """(logits, ratios, labels) of every pair of ``specs``."""
     out = []
-    for p in load_pairs(specs, cache, gaps, 5, log=lambda _: None):
+    for p in load_pairs(specs, gaps, cache, min_inliers=5, log=lambda _: None):
         x, nb = pair_input(p, model.config)
         with torch.inference_mode():
             out.append((model(x, nb)[0].double().numpy(), p.matches.ratio.astype(np.float64), p.labels))

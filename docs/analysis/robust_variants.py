@@ -20,11 +20,11 @@ import numpy as np
 
 from nmnet_ros.cache import FeatureCache
 from nmnet_ros.detectors import make_detector
-from nmnet_ros.evaluate import load_eval_pairs, paired_auc_difference, per_sequence_table
+from nmnet_ros.evaluate import paired_auc_difference, per_sequence_table
 from nmnet_ros.geometry import PoseEstimate, pose_error_deg
 from nmnet_ros.model import load_model
 from nmnet_ros.model_fast import FastNMNet
-from nmnet_ros.pairs import PairData, to_correspondences
+from nmnet_ros.pairs import PairData, load_pairs, to_correspondences
 from nmnet_ros.selectors import DEFAULT_CONFIG, Correspondences, classic_mask, nmnet_scores, robust_fit
 
 CFG = DEFAULT_CONFIG
@@ -102,7 +102,7 @@ def split_pairs(args: argparse.Namespace, model: FastNMNet) -> Iterator[tuple[st
     cache = FeatureCache(make_detector(args.detector))
     for name_range, max_pairs in SPLITS[args.pairs]:
         spec = f"{args.data}/{name_range}"
-        for p in load_eval_pairs([spec], tuple(range(1, 11)), cache, max_pairs=max_pairs):
+        for p in load_pairs([spec], tuple(range(1, 11)), cache, max_pairs=max_pairs):
             c = to_correspondences(p)
             yield spec.rsplit("/", 1)[-1], p, c, nmnet_scores(model, c, CFG)[1]
 
