@@ -27,7 +27,7 @@ from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
 from .model import NEIGHBORS, load_model
 from .model_fast import precision_note
-from .pairs import PairData, load_pairs, shared_frames, to_correspondences
+from .pairs import PairData, load_pairs, shared_frames, spec_label, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, ROBUST, build
 
@@ -126,11 +126,6 @@ def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], referen
             cells.append(cell)
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
-
-
-def sequence_label(spec: str) -> str:
-    """A 'PATH[:a-b]' spec as it is named in the per-sequence table: the folder's name and range."""
-    return Path(spec).name
 
 
 def markdown_table(metrics: dict) -> str:
@@ -237,7 +232,7 @@ def main(args: argparse.Namespace) -> int:
         if shared := shared_frames([spec], args.seqs[i + 1:], at_least=2):  # one frame shared: no pair in both
             print(f"warning: {spec} and a later folder argument share frames ({'; '.join(shared)}): the pairs within "
                   "them are evaluated twice and count twice in the means", file=sys.stderr)
-    labels = [sequence_label(spec) for spec in args.seqs]
+    labels = [spec_label(spec) for spec in args.seqs]
     if len(set(labels)) < len(labels):  # two folders of the same name (or one given twice): name them in full
         labels = list(args.seqs)
     pairs, groups = [], []

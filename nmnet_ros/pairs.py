@@ -140,7 +140,7 @@ def load_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, *, 
         dropped = (f" (of {len(made)}; {len(made) - len(kept)} with fewer than {min_inliers} inliers dropped)"
                    if len(kept) < len(made) else "")
         ratio = 100 * np.mean([p.labels.mean() for p in kept]) if kept else 0.0
-        log(f"{tool}: {Path(spec).name}: {len(kept)} pairs{dropped}, mean inlier ratio {ratio:.1f}%, ready in "
+        log(f"{tool}: {spec_label(spec)}: {len(kept)} pairs{dropped}, mean inlier ratio {ratio:.1f}%, ready in "
             f"{time.perf_counter() - t0:.0f} s")
         pairs += kept
     return pairs
@@ -155,6 +155,13 @@ def parse_seq_spec(spec: str) -> tuple[str, range | None]:
     if (m := re.fullmatch(r"(\d+)-(\d+)", rng)) is None:
         raise ValueError(f"{spec}: a frame range is PATH:a-b, frames a to b (e.g. {path}:0-119), got {rng!r}")
     return path, range(int(m[1]), int(m[2]) + 1)
+
+
+def spec_label(spec: str) -> str:
+    """A 'PATH[:a-b]' as the tables and progress lines name it: the folder's name and range (kitti-07:120-159), also
+    when PATH ends in a slash (a shell's completion adds one: the name was ':120-159')."""
+    path, frames = parse_seq_spec(spec)
+    return Path(path).name + (f":{frames.start}-{frames.stop - 1}" if frames is not None else "")
 
 
 def shared_frames(specs: list[str], others: list[str], at_least: int = 1) -> list[str]:

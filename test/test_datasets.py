@@ -115,6 +115,14 @@ def test_a_frame_range_not_of_the_form_a_b_says_the_form(tmp_path):
     assert parse_seq_spec(str(odd)) == (str(odd), None)
 
 
+def test_a_folder_given_with_a_trailing_slash_is_named_by_its_own_name():
+    """'kitti-07/:120-159' (a shell's completion adds the slash) was named ':120-159' in eval's tables."""
+    from nmnet_ros.pairs import spec_label
+
+    assert spec_label("d/kitti-07/:120-159") == spec_label("d/kitti-07:120-159") == "kitti-07:120-159"
+    assert spec_label("d/kitti-07/") == spec_label("d/kitti-07") == "kitti-07"
+
+
 def test_pairs_txt_is_honoured(tmp_path):
     src = data_dir("strecha-entry-p10")
     dst = tmp_path / "entry"
