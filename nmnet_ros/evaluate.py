@@ -245,8 +245,8 @@ def main(args: argparse.Namespace) -> int:
                                              "precision": args.precision},
                    args.seeds)
     runs = f"; MAGSAC++/RANSAC methods: mean of {args.seeds} seeds" if args.seeds > 1 else ""
-    print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%{runs}; "
-          f"NM-Net in {precision_note(args.precision)}\n")
+    net = f"; NM-Net in {precision_note(args.precision)}" if any(m.startswith("nmnet") for m in methods) else ""
+    print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%{runs}{net}\n")
     print(markdown_table(res["metrics"]))
     if args.reference in res["errors"] and len(res["errors"]) > 1:
         print("\n" + "\n".join(difference_lines(res["errors"], args.reference)))

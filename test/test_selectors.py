@@ -451,6 +451,7 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "| nmnet |" in run.stdout and (tmp_path / "curves.png").stat().st_size > 0
+    assert "7 pairs, mean inlier ratio" in run.stdout and "; NM-Net in " in run.stdout  # the arithmetic it ran in
     res = json.loads(out.read_text())
     keys = {"precision", "recall", "f1", "auc5", "auc10", "auc20", "median_rot_deg", "median_trans_deg", "pairs", "sec_per_pair"}
     assert set(res) == {"ratio", "nmnet", "oracle"} and all(set(v) == keys for v in res.values())
@@ -461,6 +462,7 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     assert run.returncode == 0 and f"plot: {tmp_path / 'b.png'}" in run.stdout, run.stderr
     assert (tmp_path / "b.png").stat().st_size > 0 and not any((tmp_path / "cwd").iterdir())
     assert "ratio+magsac's" not in run.stdout  # the default reference was not run: no comparison
+    assert "NM-Net in" not in run.stdout  # no network was run: its arithmetic is not news
     ref = subprocess.run(cmd + ["--reference", "oracle"], capture_output=True, text=True)
     assert ref.returncode == 0 and "AUC@5 minus oracle's, same 7 pairs" in ref.stdout
     assert "  nmnet: " in ref.stdout and "  ratio: " in ref.stdout and "  oracle: " not in ref.stdout
