@@ -122,15 +122,15 @@ def load_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, *, 
         seq = Sequence.load(path)
         for note in seq.notes():
             log(f"warning: {note}")
-        chosen = select_pairs(seq, gaps, frames)
-        if seq.pairs_file is None and chosen and not (chosen := [(i, j) for i, j in chosen if i % stride == 0]):
-            raise ValueError(f"no pairs to evaluate: {spec}: none of its pairs starts at a multiple of --stride {stride} "
-                          "(give a smaller one)")
-        if not chosen and skip_empty:
-            log(f"warning: {no_pairs_reason(seq, spec, gaps, frames)}")
-            continue
+        selected = select_pairs(seq, gaps, frames)
+        chosen = selected if seq.pairs_file is not None else [(i, j) for i, j in selected if i % stride == 0]
         if not chosen:
-            raise ValueError(f"no pairs to evaluate: {no_pairs_reason(seq, spec, gaps, frames)}")
+            why = no_pairs_reason(seq, spec, gaps, frames) if not selected else (
+                f"{spec}: none of its pairs starts at a multiple of --stride {stride} (give a smaller one)")
+            if not skip_empty:
+                raise ValueError(f"no pairs to evaluate: {why}")
+            log(f"warning: {why}")
+            continue
         if max_pairs and len(chosen) > max_pairs:
             chosen = [chosen[k] for k in np.linspace(0, len(chosen) - 1, max_pairs).round().astype(int)]
         t0 = time.perf_counter()
