@@ -29,7 +29,7 @@ from .model import NEIGHBORS, load_model
 from .model_fast import precision_note
 from .pairs import PairData, load_pairs, shared_frames, spec_label, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
-from .selectors import METHODS, ROBUST, build
+from .selectors import METHODS, NETWORK, ROBUST, build
 
 
 def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
@@ -245,7 +245,7 @@ def main(args: argparse.Namespace) -> int:
                                              "precision": args.precision},
                    args.seeds)
     runs = f"; MAGSAC++/RANSAC methods: mean of {args.seeds} seeds" if args.seeds > 1 else ""
-    net = f"; NM-Net in {precision_note(args.precision)}" if any(m.startswith("nmnet") for m in methods) else ""
+    net = f"; NM-Net in {precision_note(args.precision)}" if set(methods) & set(NETWORK) else ""
     print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%{runs}{net}\n")
     print(markdown_table(res["metrics"]))
     if args.reference in res["errors"] and len(res["errors"]) > 1:

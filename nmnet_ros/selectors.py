@@ -219,7 +219,7 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
     cfg = {**DEFAULT_CONFIG, **(config or {})}
     dtype = resolve_precision(cfg["precision"])  # a bad choice is refused by every method
     weights = weights or {}
-    nmnet = name in ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac")
+    nmnet = name in NETWORK
     variant = "nmnet-sp" if name == "nmnet-sp" else "nmnet"
     for other, path in weights.items():
         if path and not (nmnet and other == variant):
@@ -261,3 +261,4 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
 METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ransac", "magsac", "gms", "lpm", "nmnet+magsac",
            "nmnet+ratio+magsac", "oracle")
 ROBUST = ("ratio+magsac", "ransac", "magsac", "nmnet+magsac", "nmnet+ratio+magsac", "oracle")  # end in a seeded robust fit
+NETWORK = ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac")  # run NM-Net
