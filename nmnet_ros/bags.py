@@ -23,7 +23,8 @@ from .caminfo import camera_from_info
 from .datasets import BAG_SUFFIXES, Trajectory, is_sequence_folder, poses_from_xyzq
 from .dds import is_depth
 from .geometry import Camera, CameraError
-from .imgconv import IMAGE_TYPES, ImageError, decode_compressed, image_to_array
+from .imgconv import IMAGE_TYPES, MAX_PIXELS, ImageError, decode_message, pixel_cap
+from .posemsg import stamp_seconds
 from .tftree import TfError, TfTree
 
 
@@ -422,8 +423,8 @@ def pick_ground_truth(topics: dict[str, str], wanted: str | None) -> tuple[str |
 
 
 def msg_time(msg: Any) -> float:
-    """A message's header stamp in seconds."""
-    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+    """A message's header stamp in seconds (NaN when it is no ROS time)."""
+    return stamp_seconds(msg.header.stamp)
 
 
 def pose_from_msg(msg: Any) -> np.ndarray:
@@ -435,13 +436,6 @@ def pose_from_msg(msg: Any) -> np.ndarray:
         pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
         p, o = pose.position, pose.orientation
     return poses_from_xyzq(np.array([[p.x, p.y, p.z, o.x, o.y, o.z, o.w]], np.float64))[0]
-
-
-def decode_image_msg(msg: Any, msgtype: str) -> np.ndarray:
-    """Image/CompressedImage (rosbags message) -> array; ImageError when unusable."""
-    if msgtype.endswith("CompressedImage"):
-        return decode_compressed(msg.format, msg.data)
-    return image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data, msg.is_bigendian)
 
 
 def choose_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None) -> dict[str, str | None]:
@@ -481,14 +475,16 @@ def window_side(window: tuple[float, float] | None, first_ns: int, t_ns: int) ->
 
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
                 rectified: bool = False, recorded: bool = False,
-                window: tuple[float, float] | None = None) -> tuple[Iterator[Frame], dict[str, str | None]]:
+                window: tuple[float, float] | None = None,
+                max_pixels: int = MAX_PIXELS) -> tuple[Iterator[Frame], dict[str, str | None]]:
     """Frames of a bag with auto-detected topics (ground truth: :func:`bag_ground_truth`); errors name the topics the
     bag has.
 
     ``rectified``: the images are rectified, so their camera is camera_info's P (see caminfo). ``recorded``: each
     frame's stamp is the time the bag recorded it, not its header's (a driver that leaves the stamp at 0).
     ``window``: only the frames recorded from ``window[0]`` to ``window[1]`` seconds after the first (a part of a
-    long bag; the camera_info before it still counts), and reading stops after it.
+    long bag; the camera_info before it still counts), and reading stops after it. ``max_pixels``: the node's
+    max_image_pixels; a larger frame (or one over 4x camera_info's size) is not decoded, its error says why.
     """
     chosen = choose_topics(reader, image_topic, info_topic)
     img_t, info_t = chosen["image"], chosen["camera_info"]
@@ -510,7 +506,8 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
             if side < 0:
                 continue
             try:
-                img, err = decode_image_msg(m.msg, m.msgtype), None
+                cap = pixel_cap(max_pixels, (camera.width, camera.height) if camera is not None else None)
+                img, err = decode_message(m.msg, cap), None
             except ImageError as e:
                 img, err = None, str(e)
             pending.append((m.log_time_ns / 1e9 if recorded else msg_time(m.msg), img, err, m.msg.header.frame_id))

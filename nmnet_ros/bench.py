@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import time
 from collections.abc import Callable, Iterator
 from functools import partial
@@ -22,8 +21,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from .cli import file_path, output_file, whole
+from .cli import file_path, whole
 from .neighbors import compatibility_neighbors, compatibility_neighbors_loop, spatial_neighbors
+from .outputs import output_file, write_json
 
 if TYPE_CHECKING:  # the network and OpenCV load when a benchmark runs, not on import
     from .geometry import Camera
@@ -340,5 +340,5 @@ def _run(args: argparse.Namespace) -> int:
         sift = [f"{key.split('_')[0]} {r['sift_detect_ms']:.0f} ms" for key, r in res["pipeline"].items() if key.endswith("N2000")]
         print("\nOpenCV SIFT (2000 kp, similarity frames, --detector sift) detect+describe: " + ", ".join(sift))
     if args.json:
-        args.json.write_text(json.dumps(res, indent=1))
+        write_json(args.json, res)
     return 0

@@ -14,6 +14,8 @@ import numpy as np
 
 from .geometry import Camera, CameraError
 
+MIN_SIZE = 16  # pixels a side: a binned or cut image smaller than this is no camera's
+
 
 def _field(msg, name: str):
     """ROS 2 lower-case field, else the ROS 1 upper-case one."""
@@ -43,10 +45,16 @@ def camera_from_info(msg: Any, rectified: bool = False) -> Camera:
     bx, by = max(int(getattr(msg, "binning_x", 0)), 1), max(int(getattr(msg, "binning_y", 0)), 1)
     roi = getattr(msg, "roi", None)
     if roi is not None and (roi.width or roi.height or roi.x_offset or roi.y_offset):
+        if width > 0 and height > 0 and (roi.x_offset + roi.width > width or roi.y_offset + roi.height > height):
+            raise CameraError(f"camera_info roi ({roi.width}x{roi.height} at {roi.x_offset},{roi.y_offset}) reaches "
+                              f"outside the {width}x{height} sensor it is cut from: check the driver's roi")
         K[0, 2] -= roi.x_offset
         K[1, 2] -= roi.y_offset
         width, height = int(roi.width) or width - int(roi.x_offset), int(roi.height) or height - int(roi.y_offset)
     if bx > 1 or by > 1:
+        if width > 0 and height > 0 and (width // bx < MIN_SIZE or height // by < MIN_SIZE):
+            raise CameraError(f"camera_info binning {bx}x{by} leaves {width // bx}x{height // by} of the {width}x{height} "
+                              "sensor: not a camera's image; check the driver's binning_x/binning_y (0 or 1: none)")
         K[0] /= bx
         K[1] /= by
         width, height = width // bx, height // by
@@ -60,10 +68,13 @@ def fit_camera(camera: Camera, size: tuple[int, int]) -> tuple[Camera | None, st
 
     A frame that is the calibrated size scaled evenly (a resized stream with the full-size
     camera_info) gets K scaled to fit, with a note; any other size (a crop, a wrong topic) cannot be
-    fitted: ``None`` and the reason. A camera without a size (parameters, old bags) fits every frame.
+    fitted: ``None`` and the reason. A camera without a size (parameters, old bags) takes the frame's, so its K and D
+    are checked against it (:func:`~nmnet_ros.geometry.calibration_problem`: CameraError when implausible).
     """
     w, h = size
-    if camera.width <= 0 or camera.height <= 0 or (w, h) == (camera.width, camera.height):
+    if camera.width <= 0 or camera.height <= 0:  # checked against these frames (CameraError when implausible)
+        return Camera(camera.K, camera.dist, w, h, camera.model), None
+    if (w, h) == (camera.width, camera.height):
         return camera, None
     sx, sy = w / camera.width, h / camera.height
     seen = f"frames are {w}x{h} but camera_info describes {camera.width}x{camera.height}"

@@ -99,42 +99,6 @@ def file_path(text: str) -> Path:
     return Path(text)
 
 
-def _file_in_the_way(path: Path) -> Path | None:
-    """The first folder on ``path``'s way that is a file (so the path cannot be made), or None."""
-    return next((p for p in path.parents if p.exists() and not p.is_dir()), None)
-
-
-def not_a_folder(path: Path, flag: str, example: str) -> None:
-    """Refuse a folder given as an output file, suggesting ``example`` in it."""
-    if path.is_dir():
-        raise ValueError(f"{flag} {path} is a folder: give a file name, e.g. {path / example}")
-
-
-def output_file(path: Path | None, flag: str, example: str) -> None:
-    """Before the work: refuse a folder given as an output file and make the file's folder. Found only when the
-    result is written, at the end of minutes of work, either would lose it. ``example``: a file name to suggest."""
-    if path is None:
-        return
-    not_a_folder(path, flag, example)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        blocking = _file_in_the_way(path)
-        why = f"{blocking} is a file, not a folder" if blocking is not None else f"cannot make its folder: {e.strerror or e}"
-        raise ValueError(f"{flag} {path}: {why}") from e
-
-
-def output_folder(path: Path | None, flag: str, what: str) -> None:
-    """Before the work: refuse a file given as an output folder, or a path through a file (found when the first
-    output is written, after the work, with only '[Errno 17] File exists'). The folder is made by its writer."""
-    if path is None:
-        return
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"{flag} {path} is a file: give a folder for {what}")
-    if blocking := _file_in_the_way(path):
-        raise ValueError(f"{flag} {path}: {blocking} is a file, not a folder")
-
-
 def progress(items: list, desc: str, unit: str) -> Iterable:
     """A progress bar on a terminal (none in a log) for the tools' long loops: features and methods take minutes."""
     from tqdm import tqdm

@@ -176,6 +176,18 @@ def floats(n: int) -> Callable[[list[str]], list[float]]:
     return convert
 
 
+MAX_ROS_SECONDS = 2**31 - 1  # builtin_interfaces/Time's sec is an int32 (ROS 1's a uint32): 2038-01-19
+
+
+def ros_seconds(text: str) -> float:
+    """A frame's timestamp (seconds) that a ROS time can hold: finite, from 0 to :data:`MAX_ROS_SECONDS`; Unfit
+    otherwise (read_table then names the file and the line), as a bag cannot record it."""
+    t = float(text)
+    if not 0 <= t <= MAX_ROS_SECONDS:  # NaN fails both
+        raise Unfit(f"timestamp {text} is no ROS time (seconds from 0 to {MAX_ROS_SECONDS}, finite)")
+    return t
+
+
 def quat_to_rot(q: np.ndarray) -> np.ndarray:
     """(qx, qy, qz, qw) -> 3x3 rotation matrix; (..., 4) -> (..., 3, 3)."""
     q = np.asarray(q, np.float64)
@@ -412,7 +424,7 @@ class Sequence:
         listing = root / "images.txt"
         if not listing.is_file() and (root / "rgb.txt").is_file():
             listing = root / "rgb.txt"  # a TUM RGB-D sequence: the same 'timestamp path' lines
-        rows = read_table(listing, "timestamp path", lambda r: (float(r[0]), root / r[1].strip()), maxsplit=1)
+        rows = read_table(listing, "timestamp path", lambda r: (ros_seconds(r[0]), root / r[1].strip()), maxsplit=1)
         if not rows:
             raise DatasetError(f"{listing}: no frames listed")
         stamps = np.array([stamp for stamp, _ in rows])

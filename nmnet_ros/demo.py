@@ -14,7 +14,8 @@ import argparse
 from pathlib import Path
 
 from . import replay
-from .cli import output_folder, ros_missing
+from .cli import ros_missing
+from .outputs import output_folder, written_here
 
 SAMPLE_BAG = Path(__file__).parent / "sample" / "kitti07_120-159"
 
@@ -41,12 +42,13 @@ def _without_ros() -> str | None:
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet demo``."""
     out = args.out_dir
-    output_folder(out, "--out-dir", "the demo's outputs")
+    output_folder(out, "--out-dir", "the demo's outputs", [args.bag])
     out.mkdir(parents=True, exist_ok=True)
     parser = argparse.ArgumentParser()
     replay.add_arguments(parser)  # the demo is exactly these two replay commands
     live = out / "nmnet_live.mcap"
-    live.unlink(missing_ok=True)
+    if live.is_file() and written_here(live):  # an earlier demo's: not left beside this one's other outputs
+        live.unlink()
     if (missing := _without_ros()) is not None:
         print(f"1/2 live: skipped: {missing}")
     else:
@@ -56,7 +58,8 @@ def main(args: argparse.Namespace) -> int:
         if rc:
             return rc
     mcap = out / "nmnet_output.mcap"
-    mcap.unlink(missing_ok=True)
+    if mcap.is_file() and written_here(mcap):
+        mcap.unlink()
     print(f"\n2/2 offline, every frame, with the SIFT + ratio + MAGSAC++ baseline -> {out}/")
     return replay.main(parser.parse_args([str(args.bag), "--out", str(mcap), "--json", str(out / "summary.json"),
                                           "--plots", str(out), "--baseline"]))

@@ -11,7 +11,6 @@ size of the differences between the best pipelines.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -20,14 +19,15 @@ import numpy as np
 
 from .bf16 import PRECISIONS
 from .cache import FeatureCache
-from .cli import file_path, gaps, output_file, progress, whole
+from .cli import file_path, gaps, progress, whole
 from .datasets import FOLDERS_READ
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
 from .metrics import prf
 from .model import NEIGHBORS, load_model
 from .model_fast import precision_note
-from .pairs import PairData, load_pairs, shared_frames, spec_label, to_correspondences
+from .outputs import output_file, save_figure, write_json
+from .pairs import PairData, load_pairs, parse_seq_spec, shared_frames, spec_label, to_correspondences
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, NETWORK, ROBUST, build
 
@@ -159,9 +159,7 @@ def plot_curves(errors: dict[str, np.ndarray], path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[1].set_title("0-5 degrees", fontsize=9)
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")  # at this very path, also without a .png suffix
-    plt.close(fig)
+    save_figure(fig, path)  # at this very path, also without a .png suffix
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -213,12 +211,13 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {args.seeds}")
     if args.refine_iterations < 0:
         raise ValueError(f"--refine-iterations must be >= 0 (0 = off), got {args.refine_iterations}")
-    output_file(args.json, "--json", "eval.json")
+    inputs = [parse_seq_spec(s)[0] for s in args.seqs] + [args.weights, args.weights_sp]
+    output_file(args.json, "--json", "eval.json", inputs)
     if args.plot is None:  # beside its numbers: evaluations into one folder keep each one's plot
         args.plot = args.json.with_suffix(".png") if args.json is not None else Path("eval_curves.png")
         if args.plot == args.json:
             raise ValueError(f"--json {args.json}: its .png name is where the plot goes; name it {args.json.stem}.json")
-    output_file(args.plot, "--plot", "eval_curves.png")
+    output_file(args.plot, "--plot", "eval_curves.png", inputs)
     if args.json is not None and args.plot.resolve() == args.json.resolve():
         raise ValueError(f"--plot {args.plot} is also --json: give the plot its own file")  # it was written over the numbers
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
@@ -256,7 +255,7 @@ def main(args: argparse.Namespace) -> int:
     if len(set(groups)) > 1:
         print("\n" + per_sequence_table(res["errors"], groups, args.reference))
     if args.json:  # before the plot: the numbers are what a script reads
-        args.json.write_text(json.dumps(res["metrics"], indent=1))
+        write_json(args.json, {"methods": res["metrics"]})
     plot_curves(res["errors"], args.plot)
     print(f"\nplot: {args.plot}")
     return 0

@@ -25,6 +25,10 @@ DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
 # plumb_bob / rational_polynomial inversion: OpenCV's default of 5 fixed-point steps leaves up to 0.29 px in the
 # corners of EuRoC's lens (k1 = -0.28), twice the pose's inlier threshold; 50 steps or 1e-12 leave < 1e-9 px
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+# focal length in pixels per pixel of image size: below 0.1 the field of view exceeds any lens' (a 220-degree fisheye
+# has about 0.26), above 100 it is under 0.6 degrees; K in normalised units or in millimetres lands far below
+FOCAL_PER_PIXEL = (0.1, 100.0)
+PRINCIPAL_MARGIN = 0.25  # the principal point may lie this share of the image size outside it (a shifted lens)
 
 
 def scale_pixels(pts: np.ndarray, sx: float, sy: float) -> np.ndarray:
@@ -69,6 +73,8 @@ class Camera:
             raise CameraError(f"equidistant (fisheye) distortion has 4 coefficients k1..k4, got {self.dist.size}{fifth}")
         if self.dist.size not in (0, 4, 5, 8, 12, 14):
             raise CameraError(f"distortion must have 0/4/5/8/12/14 coefficients, got {self.dist.size}")
+        if self.width > 0 and self.height > 0 and (problem := calibration_problem(self)) is not None:
+            raise CameraError(problem)
 
     @property
     def focal(self) -> float:
@@ -111,6 +117,49 @@ class Camera:
         if self.model == "plumb_bob" and self.dist.size < 5:
             return np.r_[self.dist, np.zeros(5 - self.dist.size)]
         return self.dist
+
+
+def calibration_problem(camera: Camera) -> str | None:
+    """Why K and D cannot be a calibration of ``camera``'s image size (None when they can): a focal length or
+    principal point out of proportion to the image (K in normalised units, in millimetres, of another resolution),
+    or a lens model that folds back before the image's corners, so that undistortion cannot be inverted there.
+    A camera with such K or D gives poses with a confidence they do not have; no pose is better."""
+    w, h, K = camera.width, camera.height, camera.K
+    for axis, f, size in (("fx", K[0, 0], w), ("fy", K[1, 1], h)):
+        lo, hi = FOCAL_PER_PIXEL[0] * size, FOCAL_PER_PIXEL[1] * size
+        if not lo <= f <= hi:
+            return (f"{axis} = {f:.6g} px cannot be a {w}x{h} camera's (a focal length from {lo:.4g} to {hi:.4g} px: "
+                    "fields of view from 0.6 degrees to a fisheye's): K must be in pixels of these frames, not "
+                    "normalised or in millimetres")
+    for axis, c, size in (("cx", K[0, 2], w), ("cy", K[1, 2], h)):
+        if not -PRINCIPAL_MARGIN * size <= c <= (1 + PRINCIPAL_MARGIN) * size:
+            return (f"principal point {axis} = {c:.6g} px lies far outside the {w}x{h} image: K must be in pixels of "
+                    "these frames (check the camera_info's roi, binning and image size)")
+    if not camera.dist.any():
+        return None
+    corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
+    y = (corners[:, 1] - K[1, 2]) / K[1, 1]
+    reach = float(np.hypot((corners[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0], y).max())  # distorted radius needed
+    angle = np.linspace(0.0, np.radians(179.0) if camera.model == "equidistant" else np.radians(89.0), 4000)[1:]
+    radius = _distorted_radius(camera, angle)
+    past = np.flatnonzero(radius >= reach)
+    end = past[0] + 1 if past.size else radius.size
+    if past.size == 0 or np.any(np.diff(radius[:end]) <= 0):
+        top = float(radius[: end].max())
+        return (f"the {camera.model} distortion D = {np.round(camera.dist, 6).tolist()} folds back at a distorted "
+                f"radius of {top:.3g} (normalised), before the image's corners at {reach:.3g}: no lens maps pixels so, "
+                "and the frames cannot be undistorted there; check D's order and units (OpenCV's k1 k2 p1 p2 k3)")
+    return None
+
+
+def _distorted_radius(camera: Camera, angle: np.ndarray) -> np.ndarray:
+    """The distorted normalised radius of rays ``angle`` (radians) off the optical axis, tangential terms aside."""
+    d = np.r_[camera.dist, np.zeros(8)]
+    if camera.model == "equidistant":  # r_d = theta (1 + k1 theta^2 + ... + k4 theta^8)
+        t2 = angle ** 2
+        return angle * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
+    r2 = np.tan(angle) ** 2  # plumb_bob / rational_polynomial: k1 k2 p1 p2 k3 k4 k5 k6
+    return np.sqrt(r2) * (1 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))) / (1 + r2 * (d[5] + r2 * (d[6] + r2 * d[7])))
 
 
 def _checked_pair(x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

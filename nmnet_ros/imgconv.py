@@ -82,20 +82,92 @@ def image_to_array(height: int, width: int, encoding: str, step: int, data: Buff
     return arr
 
 
-def decode_compressed(fmt: str, data: Buffer) -> np.ndarray:
-    """CompressedImage (jpeg/png) -> array as cv2.imdecode gives it (mono or BGR)."""
+COMPRESSED_FORMATS = ("jpeg", "png")  # what CompressedImage may hold: image_transport's compressed codecs
+MAX_PIXELS = 50_000_000  # the node's max_image_pixels default: 50 MP, 150 MB as BGR, several GB through the detector
+CALIBRATED_SCALE = 4  # a frame may have up to this many times the calibrated pixels (a stream resized up 2x)
+_PNG = b"\x89PNG\r\n\x1a\n"
+_SOF = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})  # JPEG frame headers
+
+
+def pixel_cap(max_pixels: int, calibrated: tuple[int, int] | None = None) -> int:
+    """The most pixels a frame may have: ``max_pixels``, or ``CALIBRATED_SCALE`` times the calibrated size
+    (``calibrated``: width, height; None or 0 when not known), whichever is smaller."""
+    if calibrated and calibrated[0] > 0 and calibrated[1] > 0:
+        return min(max_pixels, CALIBRATED_SCALE * calibrated[0] * calibrated[1])
+    return max_pixels
+
+
+def _too_large(width: int, height: int, max_pixels: int, what: str) -> ImageError:
+    return ImageError(f"{what} is {width}x{height} = {width * height / 1e6:.1f} MP, over the cap of "
+                      f"{max_pixels / 1e6:.1f} MP (max_image_pixels, or {CALIBRATED_SCALE}x camera_info's size): not "
+                      "decoded; publish frames of the calibrated size, or raise max_image_pixels")
+
+
+def compressed_header(buf: np.ndarray) -> tuple[str, int, int]:
+    """(format, width, height) of a JPEG or PNG from its header, without decoding it; ImageError for any other
+    data, so a PFM, HDR, TIFF or WebP (or a decompression bomb in any format) is never handed to the decoder."""
+    head = buf[:32].tobytes()
+    if head.startswith(_PNG):
+        if len(head) < 24 or head[12:16] != b"IHDR":
+            raise ImageError("PNG data without its IHDR header: corrupt or truncated")
+        return "png", int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    if head.startswith(b"\xff\xd8"):
+        data, i = buf, 2
+        while i + 4 <= data.size:  # segments: 0xFF, marker, 2-byte length (which counts itself), payload
+            if data[i] != 0xFF:
+                break
+            marker = int(data[i + 1])
+            if marker == 0xFF:  # fill byte
+                i += 1
+                continue
+            if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # stand-alone markers
+                i += 2
+                continue
+            length = int(data[i + 2]) << 8 | int(data[i + 3])
+            if marker in _SOF and i + 9 <= data.size:
+                height, width = int(data[i + 5]) << 8 | int(data[i + 6]), int(data[i + 7]) << 8 | int(data[i + 8])
+                return "jpeg", width, height
+            if marker == 0xDA or length < 2:  # scan data before a frame header
+                break
+            i += 2 + length
+        raise ImageError("JPEG data without a readable frame header (SOF): corrupt or truncated")
+    raise ImageError(f"compressed data is neither JPEG nor PNG (it starts {head[:8]!r}); the node reads "
+                     f"{' and '.join(COMPRESSED_FORMATS)} (image_transport's compressed codecs)")
+
+
+def decode_compressed(fmt: str, data: Buffer, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+    """CompressedImage (JPEG or PNG, 8 or 16 bits) -> mono or BGR array; ImageError for other data, or a frame of
+    more than ``max_pixels`` (found in the header: such a frame is never decoded)."""
     buf = _bytes(data)
     if buf.size == 0:
         raise ImageError("compressed image has no data")
     if "compresseddepth" in fmt.lower():  # image_transport's depth codec: a header, then 16-bit depth or inverse depth
         raise ImageError(f"format {fmt!r} is a depth camera's compressedDepth stream, not camera frames: subscribe "
                          "the camera's colour or mono stream (its /compressed topic)")
+    kind, width, height = compressed_header(buf)
+    if width <= 0 or height <= 0:
+        raise ImageError(f"{kind} header says {width}x{height}: nothing to decode (corrupt data)")
+    if width * height > max_pixels:
+        raise _too_large(width, height, max_pixels, f"{kind} frame")
     img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise ImageError(f"cannot decode compressed image (format {fmt!r}, {buf.size} bytes): corrupt or truncated data")
+    if img.dtype not in (np.uint8, np.uint16) or img.shape[:2] != (height, width):
+        raise ImageError(f"{kind} decoded to {img.dtype} {img.shape}, not the 8- or 16-bit {width}x{height} image its "
+                         "header describes")
     if img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     return img
+
+
+def decode_message(msg, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+    """An Image or CompressedImage message (rclpy or rosbags; told apart by its ``format`` field) -> array, with the
+    checks above; ImageError when unusable."""
+    if hasattr(msg, "format"):
+        return decode_compressed(msg.format, msg.data, max_pixels)
+    if msg.height * msg.width > max_pixels:
+        raise _too_large(msg.width, msg.height, max_pixels, "image")
+    return image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data, msg.is_bigendian)
 
 
 def array_to_image_fields(img: np.ndarray) -> dict:

@@ -16,9 +16,10 @@ import numpy as np
 
 from .bags import BagError, typestore
 from .caminfo import info_fields
-from .cli import interrupts_between_steps, output_folder
+from .cli import interrupts_between_steps
 from .datasets import FOLDERS_READ, DatasetError, Sequence
 from .imgconv import array_to_image_fields
+from .outputs import not_an_input, output_folder
 from .pairs import parse_seq_spec
 from .posemsg import rot_to_quat
 
@@ -89,6 +90,7 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed
     if ros1 and out.suffix != ".bag":
         raise BagError(f"{out}: a ROS 1 bag is one file and is read by its .bag extension; name it {out.name}.bag")
     output_folder(out.parent, "the output's folder", "the bag")
+    not_an_input(out, "the output", [Path(seq_dir), seq.root, *(p.parent for p in seq.paths[:1])])
     out.parent.mkdir(parents=True, exist_ok=True)  # the ROS 2 writer makes its own, the ROS 1 one did not
     ts = typestore(ros1)
     idx = list(seq.frames(frames))

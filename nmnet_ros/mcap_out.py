@@ -10,31 +10,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from mcap.records import Header
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from .bags import typestore
 from .imgconv import array_to_image_fields, matches_to_cloud_fields
+from .outputs import LIBRARY, written_here
 from .posemsg import SIGMAS, relative_pose_of_current
 
 if TYPE_CHECKING:  # the front end (and its network) is not needed to write a bag
     from .pipeline import FrameResult
-
-
-LIBRARY = "nmnet_ros"  # the .mcap header's library field: marks the files written here
-
-
-def written_here(path: Path) -> bool:
-    """Whether an existing file may be overwritten: empty, or an .mcap this module wrote (an earlier output)."""
-    try:
-        if path.stat().st_size == 0:
-            return True
-        with open(path, "rb") as fh:
-            first = next(iter(StreamReader(fh, skip_magic=False).records), None)
-    except Exception:  # noqa: BLE001 - not an .mcap at all (a .db3, a .bag, a text file): not ours
-        return False
-    return isinstance(first, Header) and first.library == LIBRARY
 
 
 class McapOutput:

@@ -7,17 +7,17 @@ for compatibility-specific neighbours vs spatial kNN, grouped by the pair's inli
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from .cache import FeatureCache
-from .cli import file_path, gaps, output_file, whole
+from .cli import file_path, gaps, whole
 from .datasets import FOLDERS_READ
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .neighbors import compatibility_neighbors, spatial_neighbors
-from .pairs import PairData, load_pairs
+from .outputs import output_file, write_json
+from .pairs import PairData, load_pairs, parse_seq_spec
 
 BUCKETS = ((0, 20), (20, 35), (35, 50), (50, 101))
 
@@ -67,7 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet neighbors``."""
-    output_file(args.json, "--json", "neighbors.json")
+    output_file(args.json, "--json", "neighbors.json", [parse_seq_spec(s)[0] for s in args.seqs])
     cache = FeatureCache(make_detector(args.detector), args.cache)
     pairs = load_pairs(args.seqs, args.gaps, cache, stride=args.stride, tool="neighbors")  # eval's pairs, notes, reasons
     res = study(pairs, args.k)
@@ -78,5 +78,5 @@ def main(args: argparse.Namespace) -> int:
     print(f"\n{res['pairs']} pairs; compatibility higher in {res['compat_wins_percent']:.1f}% of pairs; "
           f"mean {res['compatibility_mean']:.1f}% vs {res['spatial_mean']:.1f}%")
     if args.json:
-        args.json.write_text(json.dumps(res, indent=1))
+        write_json(args.json, res)
     return 0

@@ -57,7 +57,7 @@ from .dds import (
 )
 from .debug_view import draw_matches
 from .geometry import Camera, CameraError
-from .imgconv import IMAGE_TYPES, ImageError, array_to_image_fields, decode_compressed, image_to_array, matches_to_cloud_fields
+from .imgconv import IMAGE_TYPES, ImageError, array_to_image_fields, decode_message, matches_to_cloud_fields, pixel_cap
 from .model_fast import precision_note
 from .params import (
     NODE_NAME,
@@ -72,7 +72,7 @@ from .params import (
 )
 from .pipeline import FrameResult, Frontend, Prepared, stamp_order, stamp_warning
 from .planes import NOTE as PLANE_NOTE
-from .posemsg import relative_pose_of_current
+from .posemsg import relative_pose_of_current, stamp_seconds
 
 T = TypeVar("T")
 
@@ -438,17 +438,12 @@ class NMNetNode(Node):
             return
         self._warn("internal_error", f"frame skipped after an unexpected error: {type(e).__name__}: {e}")
 
-    def _decode(self, msg) -> np.ndarray:
-        if isinstance(msg, CompressedImage):
-            return decode_compressed(msg.format, msg.data)
-        return image_to_array(msg.height, msg.width, msg.encoding, msg.step, msg.data, msg.is_bigendian)
-
     def _detect(self, msg) -> _Detected | None:
         t_recv = time.perf_counter()
         if self.camera is None:
             self._warn("no_camera_info", "no camera_info yet and no fx/fy/cx/cy parameters: frame skipped")
             return None
-        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        stamp = stamp_seconds(msg.header.stamp)
         kind = stamp_order(self._last_stamp, stamp, self.frontend.config["time_jump_s"])
         if kind is not None:
             self._warn(kind, stamp_warning(kind, self._last_stamp, stamp))
@@ -456,7 +451,8 @@ class NMNetNode(Node):
                 return None
         t = time.perf_counter()
         try:
-            img = self._decode(msg)
+            cam = self.camera
+            img = decode_message(msg, pixel_cap(self.params["max_image_pixels"], (cam.width, cam.height)))
         except ImageError as e:
             self._warn("bad_image", f"bad image message skipped: {e}")
             return None
@@ -467,7 +463,11 @@ class NMNetNode(Node):
                                        "restarting from this frame")
         self._size = size
         self._last_stamp = stamp
-        cam, note = fit_camera(self.camera, size)
+        try:
+            cam, note = fit_camera(self.camera, size)
+        except CameraError as e:  # a calibration without a size (fx..cy parameters), implausible for these frames
+            self._warn("bad_camera_info", f"frame skipped: the calibration does not fit {size[0]}x{size[1]} frames: {e}")
+            return None
         if note:
             self._warn("camera_size_mismatch", note)
         if cam is None:

@@ -16,6 +16,7 @@ import yaml
 
 from .bf16 import PRECISIONS
 from .detectors import DEFAULT_DETECTOR, DETECTORS
+from .imgconv import MAX_PIXELS
 from .posemsg import DIR_SIGMA, ROT_SIGMA_DEG
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 
@@ -67,6 +68,9 @@ PARAMS: dict[str, tuple] = {
             ("auto", "sensor_data", "reliable")),
     "rectified": (False, "the image topic carries rectified frames (image_proc's image_rect): the camera is camera_info's "
                          "P, without distortion (K and D describe the raw frames)", None),
+    "max_image_pixels": (MAX_PIXELS, "frames with more pixels than this, or than 4x camera_info's width x height, are "
+                         "refused as bad_image (a compressed one from its header, before decoding): bounds what one "
+                         "frame may cost in memory and time", (10_000, 1_000_000_000)),
     "use_compressed": (False, "subscribe image/compressed (sensor_msgs/CompressedImage) instead of image", None),
     "threads": (1, "CPU threads per pipeline stage (torch and OpenCV); detection and the rest run in parallel, "
                    "so 1 fills 2 cores", (1, 64)),

@@ -110,7 +110,11 @@ def stamp_order(last: float | None, stamp: float, time_jump_s: float) -> str | N
     (more than ``time_jump_s`` earlier: a bag loop or a clock reset; a new chain starts from it), else
     ``"duplicate_stamp"`` / ``"out_of_order_stamp"``: the frame is skipped, as relating it would give a
     pose for no time step or one backwards in time. ``"negative_stamp"``: skipped too, as ROS time cannot
-    be negative (rclpy refuses it, and a recording cannot log it). The node and the replay apply the same rule."""
+    be negative (rclpy refuses it, and a recording cannot log it); ``"invalid_stamp"`` (NaN, from
+    :func:`~nmnet_ros.posemsg.stamp_seconds`): nanosec outside 0 .. 999,999,999 is no ROS time either. The node and
+    the replay apply the same rule."""
+    if stamp != stamp:
+        return "invalid_stamp"
     if stamp < 0:
         return "negative_stamp"
     if last is None or stamp > last:
@@ -126,6 +130,9 @@ def stamp_warning(kind: str, last: float | None, stamp: float, arrival: str = "s
     if kind == "time_jump":
         return (f"frame stamp {stamp:.6f} is {last - stamp:.1f} s before the previous one (a bag played in a loop, or "
                 "the clock was reset): restarting from this frame")
+    if kind == "invalid_stamp":
+        return ("frame stamp is not a ROS time (its nanosec is not below 1,000,000,000): skipped; check how the driver "
+                "fills header.stamp (sec and nanosec, as rclpy's Time.to_msg() does)")
     if kind == "negative_stamp":
         return (f"frame stamp {stamp:.6f} is negative: skipped (ROS time starts at 0; check the driver's clock, or how "
                 "the bag was restamped)")

@@ -27,6 +27,12 @@ REF_MATCHES = 200
 NO_ESTIMATE_VAR = 1e6  # variance on every axis of a frame without an estimate
 
 
+def stamp_seconds(stamp) -> float:
+    """A header stamp (builtin_interfaces/Time: sec, nanosec) in seconds; NaN when it is no ROS time (nanosec
+    outside 0 .. 999,999,999), which :func:`~nmnet_ros.pipeline.stamp_order` refuses as ``invalid_stamp``."""
+    return stamp.sec + 1e-9 * stamp.nanosec if 0 <= stamp.nanosec < 1_000_000_000 else float("nan")
+
+
 def rot_to_quat(R: np.ndarray) -> np.ndarray:
     """3x3 rotation -> quaternion (x, y, z, w), w >= 0."""
     R = np.asarray(R, np.float64)

@@ -9,7 +9,6 @@ OpenCV pipeline (SIFT + mutual/ratio + MAGSAC++) over the same frames for compar
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Callable
@@ -21,13 +20,15 @@ import numpy as np
 from .bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from .bf16 import PRECISIONS
 from .caminfo import fit_camera
-from .cli import bounded, file_path, not_a_folder, output_file, output_folder
+from .cli import bounded, file_path
 from .datasets import Trajectory, parse_pose, read_camera_yaml, read_tum
 from .debug_view import draw_matches
 from .detectors import DETECTORS
-from .geometry import Camera, PoseEstimate, pose_auc, pose_error_deg, relative_pose, rotation_error_deg
+from .geometry import Camera, CameraError, PoseEstimate, pose_auc, pose_error_deg, relative_pose, rotation_error_deg
+from .imgconv import MAX_PIXELS
 from .mcap_out import McapOutput
 from .model import load_model
+from .outputs import not_a_folder, not_an_input, output_file, output_folder, save_figure, save_image, write_json
 from .params import PARAMS, SELECTORS, check_value, frontend_config, pose_sigmas, read_params_file
 from .pipeline import RESTARTS, FrameResult, Frontend, stamp_order, stamp_warning
 from .planes import NOTE as PLANE_NOTE
@@ -204,7 +205,11 @@ class _Gate:
             if order != "time_jump":  # a jump back restarts the chain from this frame; the others are skipped
                 return None
         self.last_stamp = f.stamp
-        cam, note = fit_camera(calibration, (f.image.shape[1], f.image.shape[0]))
+        try:
+            cam, note = fit_camera(calibration, (f.image.shape[1], f.image.shape[0]))
+        except CameraError as e:  # a calibration without a size, implausible for these frames
+            self.notes("bad_camera_info", f"frame at {f.stamp:.3f}: skipped, the calibration does not fit it: {e}")
+            return None
         if note:  # said when it changes: a scaled K holds for every frame of the stream
             self.notes("camera_size_mismatch", f"frame at {f.stamp:.3f}: {note}" if note != self.last_note else None)
             self.last_note = note
@@ -215,7 +220,8 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
                 debug_images: bool = False, progress: bool = True, topics: dict | None = None,
                 log: Callable[[str], None] = print, camera: Camera | None = None,
                 rectified: bool = False, recorded: bool = False,
-                window: tuple[float, float] | None = None) -> tuple[Run, int, np.ndarray | None]:
+                window: tuple[float, float] | None = None,
+                max_pixels: int = MAX_PIXELS) -> tuple[Run, int, np.ndarray | None]:
     """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the match overlay of the
     first frame with a pose (None when none has one).
 
@@ -224,9 +230,11 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     ``truth``: the ground truth the frames are scored against (:func:`ground_truth`), by stamp; ``camera``: the
     calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified; ``recorded``: the
     frames are stamped with the time the bag recorded them (``--stamp-source arrival``); ``window``: the part of the
-    bag to replay (``--start``, ``--duration``: seconds after its first frame).
+    bag to replay (``--start``, ``--duration``: seconds after its first frame); ``max_pixels``: the node's
+    max_image_pixels.
     """
-    frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded, window=window)
+    frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded, window=window,
+                            max_pixels=max_pixels)
     run = Run(fe.config["selector"])
     notes = Notes(log)
     gate = _Gate(notes, camera, fe.config["time_jump_s"])
@@ -307,19 +315,12 @@ def chain_trajectory(run: Run) -> tuple[np.ndarray, np.ndarray]:
     return np.array(est), np.array(gt)
 
 
-def _save(fig, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+PLOTS = ("errors", "trajectory", "matches")  # the plots' names, each a .png
 
 
 def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path, prefix: str = "") -> list[Path]:
     """Per-frame errors and trajectory (top view) where ground truth scored any pair, and the match overlay,
     as ``out_dir/<prefix>errors.png``, ``trajectory.png`` and ``matches.png``."""
-    import cv2
     import matplotlib
 
     matplotlib.use("Agg")
@@ -339,7 +340,7 @@ def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path, pref
         for a in ax:
             a.grid(alpha=0.3)
             a.legend(fontsize=8)
-        paths.append(_save(fig, out_dir / f"{prefix}errors.png"))
+        paths.append(save_figure(fig, out_dir / f"{prefix}errors.png"))
 
     chains = [(run, *chain_trajectory(run)) for run in runs]
     chains = [(run, est, gt) for run, est, gt in chains if len(gt) > 1]  # a path: two positions or more
@@ -354,10 +355,9 @@ def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path, pref
         ax.axis("equal")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-        paths.append(_save(fig, out_dir / f"{prefix}trajectory.png"))
+        paths.append(save_figure(fig, out_dir / f"{prefix}trajectory.png"))
     if overlay is not None:
-        paths.append(out_dir / f"{prefix}matches.png")
-        cv2.imwrite(str(paths[-1]), overlay)
+        paths.append(save_image(out_dir / f"{prefix}matches.png", overlay))
     return paths
 
 
@@ -544,30 +544,25 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
     after the whole replay. Beside ``--out`` the plots carry its name, so replays of several bags into one folder
     (``--out results/a.mcap``, ``--out results/b.mcap``) keep each one's plots.
     """
-    outputs = {"--out": args.out, "--json": args.json}
-    given = [p for p in inputs if p is not None and p.exists()]
-    for flag, path in outputs.items():
-        same = next((p for p in given if path is not None and path.exists() and path.samefile(p)), None)
-        if same is not None:
-            raise ValueError(f"{flag} {path} is an input of this replay ({same}): it would be overwritten; "
-                             "choose another path")
     if args.json is not None and args.json.resolve() == args.out.resolve():
         raise ValueError(f"--json {args.json} is also --out: give the summary its own file")
     not_a_folder(args.out, "--out", "nmnet.mcap")  # the rest of --out's checks come as the output is opened
+    not_an_input(args.out, "--out", inputs)
     if args.out.suffix != ".mcap" and not args.out.exists():  # an existing file: McapOutput says whose it is
         raise ValueError(f"--out {args.out}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know "
                          f"by its .mcap suffix: give {args.out.with_suffix('.mcap')}")
-    output_file(args.json, "--json", "summary.json")
-    output_folder(args.plots, "--plots", "the plots")
-    if args.plots is not None:
-        return args.plots, ""
-    return args.out.parent, f"{args.out.stem}_"  # --out's folder: its writability is checked as the output is opened
+    output_file(args.json, "--json", "summary.json", inputs)
+    plots, prefix = (args.plots, "") if args.plots is not None else (args.out.parent, f"{args.out.stem}_")
+    output_folder(plots, "--plots" if args.plots is not None else "--out", "the plots", inputs,
+                  [f"{prefix}{name}.png" for name in PLOTS])
+    return plots, prefix  # --out's folder: its writability is checked as the output is opened
 
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay``: offline through the front end here, or ``--live`` through the node."""
     reader = BagReader(args.bag)  # a missing or unreadable bag stops here
-    plots_dir, plots_prefix = check_outputs(args, [*reader.files, args.gt, args.camera, args.params_file, args.weights])
+    plots_dir, plots_prefix = check_outputs(args, [reader.path, *reader.files, args.gt, args.camera, args.params_file,
+                                                   args.weights])
     params = node_params(args)  # a bad parameters file stops here, naming it
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic}
     if args.live:
@@ -594,7 +589,7 @@ def main(args: argparse.Namespace) -> int:
                               "resize_width": cfg["resize_width"]}) if args.baseline else None
     out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
     reading = {"camera": camera, "rectified": params["rectified"], "recorded": params["stamp_source"] == "arrival",
-               "window": replay_window(args)}
+               "window": replay_window(args), "max_pixels": params["max_image_pixels"]}
     runs, interrupted = [], False
     try:
         run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics, **reading)
@@ -620,24 +615,12 @@ def main(args: argparse.Namespace) -> int:
         summary["baseline"] = runs[1].summary(n)
         print_summary(summary["baseline"], runs[1].name)
     if args.json:  # before the plots: the summary is what a script reads
-        args.json.write_text(summary_json(summary))
+        write_json(args.json, summary)
     plots_dir.mkdir(parents=True, exist_ok=True)
     for p in write_plots(runs, overlay, plots_dir, plots_prefix):
         print(f"plot: {p}")
     print(f"output: {args.out} ({out.count} messages)")
     return 130 if interrupted else 0
-
-
-def summary_json(summary: dict) -> str:
-    """JSON text of a summary; a NaN (no pair scored) is written as null, which every JSON parser reads."""
-    def clean(v):
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, (list, tuple)):
-            return [clean(x) for x in v]
-        return None if isinstance(v, float) and not np.isfinite(v) else v
-
-    return json.dumps(clean(summary), indent=1, allow_nan=False)
 
 
 def live_node_args(args: argparse.Namespace) -> list[str]:
@@ -708,5 +691,5 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth), params, interrupted)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
-        args.json.write_text(summary_json(summary))
+        write_json(args.json, summary)
     return 130 if interrupted else 1 if "node_exit_code" in summary else 0

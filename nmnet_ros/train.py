@@ -28,13 +28,14 @@ import numpy as np
 import torch
 
 from .cache import FeatureCache
-from .cli import gaps, output_folder, whole
+from .cli import gaps, whole
 from .datasets import FOLDERS_READ, LABEL_THRESHOLD, Sequence, pose_labels
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
 from .metrics import prf
 from .model import NEIGHBORS, NMNet, WeightsError, load_model, network_input
 from .neighbors import mine_neighbors
+from .outputs import output_folder, write_json, written_by
 from .pairs import PairData, load_pairs, parse_seq_spec, shared_frames
 
 DEFAULT_CONFIG: dict = {
@@ -442,7 +443,8 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         except RuntimeError as e:
             raise WeightsError(f"--resume: {out_dir / 'last.pt'} does not fit this run's network; resume with the options "
                                f"it was started with (--ratio-input or not): {str(e).splitlines()[0]}") from e
-    output_folder(out_dir, "--out", "the checkpoints")  # before minutes of features
+    inputs = [parse_seq_spec(s)[0] for s in (*train_specs, *val_specs)] + [c["init"] and Path(c["init"])]
+    output_folder(out_dir, "--out", "the checkpoints", inputs, ("history.json", "summary.json"))  # before minutes of features
     cache = FeatureCache(make_detector(c["detector"]), cache_dir)
     log("loading training pairs")
     groups = [_labelled_pairs([spec], cache, c, log) for spec in train_specs]
@@ -475,7 +477,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
                 "is kept while validation F beats the run's best so far, which other --val, --label-threshold or "
                 "--detector values make a different measure; start a new --out to compare them")
 
-    meta = {"config": model.config, **record, "commit": _git_commit()}  # the same for every epoch's checkpoints
+    meta = {"config": model.config, **record, "commit": _git_commit(), "written_by": written_by()}  # the same for every epoch's checkpoints
     pool = ThreadPoolExecutor(c["workers"])
     t_start = time.time()
     try:
@@ -504,7 +506,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
             _save(out_dir / "last.pt", {"state_dict": state, **meta, "optimizer": opt.state_dict(), "epoch": epoch,
                                         "best_f": best_f, "history": history, "rng": rng.bit_generator.state,
                                         "torch_rng": torch.get_rng_state()})
-            (out_dir / "history.json").write_text(json.dumps(history, indent=1))
+            write_json(out_dir / "history.json", {"epochs": history})
     except KeyboardInterrupt:  # Ctrl-C ends a long run: its best.pt still gets the score threshold the tools read
         pool.shutdown(wait=False, cancel_futures=True)
         if (out_dir / "best.pt").is_file():
@@ -514,7 +516,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     pool.shutdown()
     summary = {"best_val_f1_at_0.5": best_f, "train_pairs": len(train_pairs), "val_pairs": len(val_pairs),
                "train_minutes": (time.time() - t_start) / 60, "epochs": c["epochs"], **calibrate(out_dir, val_pairs, log)}
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    write_json(out_dir / "summary.json", summary)
     return summary
 
 

@@ -414,9 +414,9 @@ def test_an_output_that_would_overwrite_an_input_or_a_recording_is_refused_befor
     other.write_text("a user's file\n")
     kept = {p: p.read_bytes() for p in (bag, gt, other)}
     out = str(tmp_path / "o.mcap")
-    for args, said in [(("--out", str(bag)), f"--out {bag} is an input of this replay"),
-                       (("--out", out, "--json", str(bag)), f"--json {bag} is an input of this replay"),
-                       (("--out", str(gt), "--gt", str(gt)), f"--out {gt} is an input of this replay"),
+    for args, said in [(("--out", str(bag)), f"--out {bag} is an input of this command"),
+                       (("--out", out, "--json", str(bag)), f"--json {bag} is an input of this command"),
+                       (("--out", str(gt), "--gt", str(gt)), f"--out {gt} is an input of this command"),
                        (("--out", str(other)), "exists and was not written by nmnet"),
                        (("--out", out, "--json", out), "is also --out"),
                        (("--out", out, "--json", str(tmp_path)), "is a folder"),

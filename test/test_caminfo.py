@@ -85,8 +85,11 @@ def test_frames_are_fitted_to_their_calibration():
     np.testing.assert_allclose(half.normalize((px_full + 0.5) * 0.5 - 0.5), cam.normalize(px_full), atol=1e-9)
     crop, note = fit_camera(cam, (1280, 600))
     assert crop is None and "not the same image scaled" in note and "frame skipped" in note
-    nosize = Camera(K_FULL)
-    assert fit_camera(nosize, (640, 480)) == (nosize, None)  # fx..cy parameters: no size to check against
+    nosize = Camera(K_FULL)  # fx..cy parameters: no size of their own; they take the frames' and are checked against it
+    sized, note = fit_camera(nosize, (1280, 720))
+    assert note is None and (sized.width, sized.height) == (1280, 720) and np.array_equal(sized.K, K_FULL)
+    with pytest.raises(CameraError, match="principal point cx = 640.5 px lies far outside the 320x240 image"):
+        fit_camera(nosize, (320, 240))
 
 
 def test_rectified_frames_take_the_projection_matrix_without_distortion():

@@ -220,7 +220,8 @@ def test_ros_wheels_are_required_only_where_pypi_has_them():
 def test_an_output_file_that_cannot_be_written_is_refused_before_the_work(argv, example, tmp_path, capsys):
     """A folder given as --json, or a file in the way of its folder: said at once, not after minutes of work (which
     the result was lost with); a folder not there yet is made."""
-    from nmnet_ros.cli import main, output_file
+    from nmnet_ros.cli import main
+    from nmnet_ros.outputs import output_file
 
     afile = tmp_path / "afile"
     afile.write_text("")

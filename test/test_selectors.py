@@ -452,7 +452,9 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     assert run.returncode == 0, run.stderr
     assert "| nmnet |" in run.stdout and (tmp_path / "curves.png").stat().st_size > 0
     assert "7 pairs, mean inlier ratio" in run.stdout and "; NM-Net in " in run.stdout  # the arithmetic it ran in
-    res = json.loads(out.read_text())
+    doc = json.loads(out.read_text())
+    assert set(doc) == {"written_by", "methods"} and doc["written_by"].startswith("nmnet_ros")
+    res = doc["methods"]
     keys = {"precision", "recall", "f1", "auc5", "auc10", "auc20", "median_rot_deg", "median_trans_deg", "pairs", "sec_per_pair"}
     assert set(res) == {"ratio", "nmnet", "oracle"} and all(set(v) == keys for v in res.values())
     assert res["oracle"]["precision"] == 100.0 and res["nmnet"]["pairs"] == 7  # 4 gap-1 + 3 gap-2 pairs in 120-124

@@ -93,7 +93,7 @@ def test_train_few_steps_then_resume(tmp_path):
     said.clear()
     s2 = train(spec_train, spec_val, tmp_path, {**cfg, "epochs": 2}, resume=True, cache_dir=tmp_path / "cache",
                log=said.append)
-    hist = json.loads((tmp_path / "history.json").read_text())
+    hist = json.loads((tmp_path / "history.json").read_text())["epochs"]
     assert [h["epoch"] for h in hist] == [0, 1] and s2["best_val_f1_at_0.5"] >= s["best_val_f1_at_0.5"]
     assert not any("warning" in line for line in said), said  # more --epochs: what --resume is for
     said.clear()  # other labels or validation frames: best.pt's F is then another measure, said
@@ -130,7 +130,7 @@ def test_fine_tune_from_shipped_weights_on_the_fast_detector(tmp_path):
     # resuming continues from last.pt: --init seeded the first start only (a missing file is not read again)
     train([f"{seq}:0-1"], [f"{seq}:2-3"], tmp_path, {**cfg, "epochs": 2, "init": str(tmp_path / "gone.pt")},
           resume=True, cache_dir=tmp_path / "cache")
-    assert [h["epoch"] for h in json.loads((tmp_path / "history.json").read_text())] == [0, 1]
+    assert [h["epoch"] for h in json.loads((tmp_path / "history.json").read_text())["epochs"]] == [0, 1]
 
 
 def test_stricter_label_threshold_keeps_a_subset_of_the_inliers(tmp_path):
@@ -413,7 +413,7 @@ def test_training_option_is_seeded_and_changes_the_training(tmp_path, key, on, o
 
     def loss(out: str, value) -> float:
         train(spec_train, spec_val, tmp_path / out, {**cfg, key: value}, cache_dir=cache)
-        return json.loads((tmp_path / out / "history.json").read_text())[0]["loss"]
+        return json.loads((tmp_path / out / "history.json").read_text())["epochs"][0]["loss"]
 
     a, b = loss("a", on), loss("b", on)
     assert a == b and a != loss("plain", off)
@@ -500,7 +500,7 @@ def test_balance_is_seeded_and_changes_the_batches(tmp_path):
 
     def loss(out: str, balance: float) -> float:
         train(spec_train, spec_val, tmp_path / out, {**cfg, "balance": balance}, cache_dir=cache)
-        return json.loads((tmp_path / out / "history.json").read_text())[0]["loss"]
+        return json.loads((tmp_path / out / "history.json").read_text())["epochs"][0]["loss"]
 
     a, b = loss("a", 1.0), loss("b", 1.0)
     assert a == b and a != loss("plain", 0.0)
