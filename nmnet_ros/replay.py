@@ -28,7 +28,7 @@ from .geometry import Camera, CameraError, PoseEstimate, pose_auc, pose_error_de
 from .imgconv import MAX_PIXELS
 from .mcap_out import McapOutput
 from .model import load_model
-from .outputs import not_a_folder, not_an_input, output_file, output_folder, save_figure, save_image, write_json
+from .outputs import not_a_folder, not_an_input, not_someone_elses, output_file, output_folder, save_figure, save_image, write_json
 from .params import PARAMS, SELECTORS, check_value, frontend_config, pose_sigmas, read_params_file
 from .pipeline import RESTARTS, FrameResult, Frontend, stamp_order, stamp_warning
 from .planes import NOTE as PLANE_NOTE
@@ -552,10 +552,13 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
         raise ValueError(f"--out {args.out}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know "
                          f"by its .mcap suffix: give {args.out.with_suffix('.mcap')}")
     output_file(args.json, "--json", "summary.json", inputs)
-    plots, prefix = (args.plots, "") if args.plots is not None else (args.out.parent, f"{args.out.stem}_")
-    output_folder(plots, "--plots" if args.plots is not None else "--out", "the plots", inputs,
-                  [f"{prefix}{name}.png" for name in PLOTS])
-    return plots, prefix  # --out's folder: its writability is checked as the output is opened
+    if args.plots is not None:
+        output_folder(args.plots, "--plots", "the plots", inputs, [f"{name}.png" for name in PLOTS])
+        return args.plots, ""
+    prefix = f"{args.out.stem}_"  # in --out's folder, whose writability is checked as the output is opened
+    for name in PLOTS:
+        not_someone_elses(args.out.parent / f"{prefix}{name}.png", "the plot")
+    return args.out.parent, prefix
 
 
 def main(args: argparse.Namespace) -> int:

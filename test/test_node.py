@@ -388,6 +388,73 @@ def test_corrupt_jpeg_is_skipped(ros, tmp_path):
     assert "cannot decode compressed image" in node.output()
 
 
+def peak_rss_mb(pid: int) -> float:
+    """The process's peak resident memory so far (VmHWM), in MB."""
+    line = next(ln for ln in open(f"/proc/{pid}/status").read().splitlines() if ln.startswith("VmHWM:"))
+    return int(line.split()[1]) / 1024
+
+
+def test_hostile_frames_and_calibrations_cost_little_and_publish_no_pose(ros, tmp_path):
+    """Over DDS, the cases the node took before: calibrations that cannot be true (K normalised, binning 1000, an
+    roi outside the sensor) were accepted and gave confident poses; a 50 KB PNG decoding to 12260x3700 took the node
+    to 2.4 GB; a float PFM ended in internal_error; a stamp with nanosec >= 1e9 was processed. Each is now refused,
+    named and counted, no pose is published from it, memory stays bounded, and the next good frame is processed."""
+    from sensor_msgs.msg import RegionOfInterest
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    with node_and_peer(ros, tmp_path, ["--ros-args", "-p", "use_compressed:=true"], signal.SIGINT, compressed=True) as (node, peer):
+        peer.wait_connected()
+        normalised, binned, cut = kitti_info(seq), kitti_info(seq), kitti_info(seq)
+        normalised.k = [0.577, 0.0, 0.49, 0.0, 1.74, 0.49, 0.0, 0.0, 1.0]
+        binned.binning_x = binned.binning_y = 1000
+        cut.roi = RegionOfInterest(x_offset=2000, y_offset=0, width=600, height=300)
+        for n, info in enumerate((normalised, binned, cut), start=1):
+            for _ in range(5):  # best effort: send until it is counted
+                peer.pub_info.publish(info)
+                if wait_diag(peer, "warn_bad_camera_info", n, timeout=3.0):
+                    break
+        peer.pub_img.publish(compressed_msg(seq.image(60), 0.5))  # no plausible calibration yet: skipped, said
+        assert wait_diag(peer, "warn_no_camera_info", 1)
+        assert not peer.poses and not peer.matches
+        peer.first_frame(kitti_info(seq), compressed_msg(seq.image(60), 1.0))
+        before = peak_rss_mb(node.proc.pid)
+
+        pfm = cv2.imencode(".pfm", seq.image(61)[:120, :160].astype(np.float32) / 255)[1].tobytes()  # a float frame
+        hostile = [compressed_msg(None, 2.0, data=cv2.imencode(".png", np.zeros((3700, 12260), np.uint8))[1].tobytes()),
+                   compressed_msg(None, 2.1, data=cv2.imencode(".png", np.zeros((7400, 24520), np.uint8))[1].tobytes()),
+                   compressed_msg(None, 2.2, data=pfm)]
+        for n, msg in enumerate(hostile, start=1):
+            for _ in range(5):
+                peer.pub_img.publish(msg)
+                if wait_diag(peer, "warn_bad_image", n, timeout=3.0):
+                    break
+            assert peer.count("warn_bad_image") == n, f"hostile frame {n} not refused as bad_image"
+        late = compressed_msg(seq.image(61), 3.0)
+        late.header.stamp.nanosec = 1_500_000_000  # no ROS time
+        peer.pub_img.publish(late)
+        assert wait_diag(peer, "warn_invalid_stamp", 1)
+        largest = cv2.resize(seq.image(62), (2 * 1226, 2 * 370))  # 4x the calibrated pixels: the most it accepts
+        for n in range(5):
+            peer.pub_img.publish(compressed_msg(None, 4.0 + n, cv2.imencode(".jpg", largest)[1].tobytes()))
+            if peer.wait_result_for(4.0 + n, timeout=10.0):
+                break
+        else:
+            raise AssertionError("the largest accepted frame was not processed")
+        peer.pub_img.publish(compressed_msg(seq.image(63), 10.0))  # back to the camera's size: processed
+        assert peer.wait_result_for(10.0)
+        peak = peak_rss_mb(node.proc.pid)
+        print(f"node peak resident memory: {before:.0f} MB after its first frame, {peak:.0f} MB after the hostile "
+              "frames and the largest frame it accepts (2452x740, 4x camera_info's pixels)")
+        assert peak < 1500, peak
+        assert all(m.header.stamp.nanosec < 10**9 for _, m in peer.poses)  # nothing republished with the bad stamp
+        assert peer.count("warn_internal_error") == 0
+    out = node.output()
+    for needle in ("fx = 0.577 px cannot be a 1226x370 camera's", "binning 1000x1000 leaves 1x0 of the 1226x370 sensor",
+                   "roi (600x300 at 2000,0) reaches outside", "png frame is 12260x3700 = 45.4 MP, over the cap of 1.8 MP",
+                   "neither JPEG nor PNG", "not a ROS time"):
+        assert needle in out, f"no clear warning containing {needle!r}:\n{out}"
+
+
 def test_a_reliable_camera_with_large_raw_frames_is_followed(ros, tmp_path):
     """qos auto subscribes reliable to a reliable camera, so frames over 0.5 MB arrive (best effort loses them).
 
