@@ -665,21 +665,29 @@ def test_a_standing_camera_is_scored_on_its_rotation(tmp_path):
     assert live["still_pairs"] == 20 and live["median_still_rot_deg"] < 0.02, live  # every pair, as offline
 
 
-def test_a_summary_without_scored_pairs_is_strict_json():
-    from nmnet_ros.replay import summary_json
+def summary_json(summary: dict, tmp_path: Path) -> str:
+    """What ``--json`` writes for ``summary``."""
+    from nmnet_ros.outputs import write_json
 
+    write_json(tmp_path / "s.json", summary)
+    return (tmp_path / "s.json").read_text()
+
+
+def test_a_summary_without_scored_pairs_is_strict_json(tmp_path):
     def refuse(name):
         raise AssertionError(f"{name} is not JSON")
 
-    text = summary_json({"auc5": float("nan"), "nmnet": {"auc10": float("inf"), "per_frame": [1.5, float("nan")]}, "frames": 6})
-    assert json.loads(text, parse_constant=refuse) == {"auc5": None, "nmnet": {"auc10": None, "per_frame": [1.5, None]},
-                                                       "frames": 6}
+    text = summary_json({"auc5": float("nan"), "nmnet": {"auc10": float("inf"), "per_frame": [1.5, float("nan")]},
+                         "frames": 6}, tmp_path)
+    doc = json.loads(text, parse_constant=refuse)
+    assert doc.pop("written_by").startswith("nmnet_ros")
+    assert doc == {"auc5": None, "nmnet": {"auc10": None, "per_frame": [1.5, None]}, "frames": 6}
 
 
-def test_a_live_summary_says_why_frames_dropped_and_what_it_cannot_know_without_the_nodes_report(capsys):
+def test_a_live_summary_says_why_frames_dropped_and_what_it_cannot_know_without_the_nodes_report(capsys, tmp_path):
     """The live replay's summary takes the reasons for dropped frames from the node's last /diagnostics; a node that
     never reported (it ended before its first 1 Hz report) leaves them unknown (null in JSON), not 0 or a crash."""
-    from nmnet_ros.replay import error_summary, live_summary, summary_json
+    from nmnet_ros.replay import error_summary, live_summary
     from nmnet_ros.tracks import track_summary
 
     stats = {"published": 10, "results": 7, "latency_ms": [40.0, 60.0], "diagnostics": {}}
@@ -687,14 +695,14 @@ def test_a_live_summary_says_why_frames_dropped_and_what_it_cannot_know_without_
     out = capsys.readouterr().out
     assert (s["processed"], s["dropped"], s["received"], s["dropped_busy"]) == (7, 3, None, None), s
     assert "live: 7/10 frames processed, 3 dropped, latency p50 50 ms" in out and "replaced" not in out, out
-    assert json.loads(summary_json(s))["received"] is None and "tracks:" not in out  # no matches recorded, no line
+    assert json.loads(summary_json(s, tmp_path))["received"] is None and "tracks:" not in out  # no matches recorded, no line
     stats["diagnostics"] = {"frames_received": "9", "frames_dropped": "2", "warn_bad_image": "1", "rate_hz": "3.5"}
     s = live_summary(stats, 2.0, error_summary([]), track_summary([np.array([4, 5]), np.array([4])]), {"k": 8})
     out = capsys.readouterr().out
     assert (s["received"], s["dropped_busy"], s["warnings"]) == (9, 2, {"bad_image": 1}), s
     assert "3 dropped (2 replaced by a newer frame while the node was busy, 1 not received)" in out, out
     assert "the node's warnings (its /diagnostics): bad_image 1" in out, out
-    assert "tracks: 2, seen in 2.5 frames on average" in out and json.loads(summary_json(s))["tracks"]["longest"] == 3
+    assert "tracks: 2, seen in 2.5 frames on average" in out and json.loads(summary_json(s, tmp_path))["tracks"]["longest"] == 3
 
 
 @pytest.mark.parametrize("model, dist, written", [

@@ -9,7 +9,7 @@ import pytest
 from .conftest import ROOT
 
 CORE = ["features", "matching", "neighbors", "geometry", "planes", "datasets", "asl", "kitti", "tum", "model", "pairs", "metrics",
-        "cache", "train", "neighbor_study"]
+        "cache", "train", "neighbor_study", "imgconv", "caminfo", "posemsg", "outputs"]
 OFFLINE_TOOLS = ["evaluate", "replay", "make_bag", "bench", "cli", "params"]  # nmnet replay (offline), eval, make-bag, bench
 
 
