@@ -180,12 +180,22 @@ MAX_ROS_SECONDS = 2**31 - 1  # builtin_interfaces/Time's sec is an int32 (ROS 1'
 
 
 def ros_seconds(text: str) -> float:
-    """A frame's timestamp (seconds) that a ROS time can hold: finite, from 0 to :data:`MAX_ROS_SECONDS`; Unfit
-    otherwise (read_table then names the file and the line), as a bag cannot record it."""
+    """A frame's timestamp in seconds, finite and not negative (ROS time starts at 0); Unfit otherwise (read_table
+    then names the file and the line), as a bag cannot record it. The upper bound is checked after
+    :func:`check_seconds`, which says when the stamps are nanoseconds: :func:`check_ros_time`."""
     t = float(text)
-    if not 0 <= t <= MAX_ROS_SECONDS:  # NaN fails both
+    if not 0 <= t < float("inf"):  # NaN fails too
         raise Unfit(f"timestamp {text} is no ROS time (seconds from 0 to {MAX_ROS_SECONDS}, finite)")
     return t
+
+
+def check_ros_time(path: Path, stamps: np.ndarray) -> None:
+    """Refuse stamps past :data:`MAX_ROS_SECONDS`, naming the line of ``path`` (rows as read_table reads them)."""
+    if (late := np.flatnonzero(stamps > MAX_ROS_SECONDS)).size:
+        rows = [(n, line.split()[0]) for n, line in enumerate(path.read_text().splitlines(), 1)
+                if line.strip() and not line.lstrip().startswith("#")]
+        n, text = rows[late[0]]
+        raise DatasetError(f"{path}:{n}: timestamp {text} is no ROS time (seconds from 0 to {MAX_ROS_SECONDS}, finite)")
 
 
 def quat_to_rot(q: np.ndarray) -> np.ndarray:
@@ -429,6 +439,7 @@ class Sequence:
             raise DatasetError(f"{listing}: no frames listed")
         stamps = np.array([stamp for stamp, _ in rows])
         check_seconds(listing, stamps, "frames")
+        check_ros_time(listing, stamps)
         paths = [path for _, path in rows]
         poses = None
         if (root / "groundtruth.txt").is_file():

@@ -449,7 +449,8 @@ def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_re
     assert main(["neighbors", f"{tmp_path}:0-2", "--gaps", "1", "--stride", "1", "--detector", "sift", "--cache",
                  str(tmp_path / "cache")]) == 0
     assert f"warning: {half.size_note}" in capsys.readouterr().err
-    assert main(["make-bag", f"{tmp_path}:0-1", str(tmp_path / "bag")]) == 0  # make-bag too: it writes the fitted K
+    out = tmp_path.with_name(tmp_path.name + "_out")  # beside the sequence folder: no tool writes into its input
+    assert main(["make-bag", f"{tmp_path}:0-1", str(out / "bag")]) == 0  # make-bag too: it writes the fitted K
     assert f"warning: {half.size_note}" in capsys.readouterr().err
 
     cv2.imwrite(str(tmp_path / "images" / full.paths[2].name), full.image(2))  # one frame of another size
@@ -481,11 +482,12 @@ def test_a_missing_truncated_or_empty_image_is_named_not_read_in_part(tmp_path, 
     from nmnet_ros.bags import BagError, BagReader
     from nmnet_ros.make_bag import TOPICS, make_bag
 
-    assert make_bag(tmp_path, tmp_path / "bag", "mcap", frames=range(0, 5)) == 2  # frames 0 and 4
+    outs = tmp_path.with_name(tmp_path.name + "_out")  # beside the sequence folder: no tool writes into its input
+    assert make_bag(tmp_path, outs / "bag", "mcap", frames=range(0, 5)) == 2  # frames 0 and 4
     said = capsys.readouterr().err
     assert [f"warning: frame {i}: skipped, {seq.paths[i]}: cannot" in said for i in range(5)] == [False, True, True, True, False]
-    assert len(list(BagReader(tmp_path / "bag").messages({TOPICS["image"]}))) == 2
-    for fmt, out in (("mcap", tmp_path / "none"), ("ros1", tmp_path / "none.bag")):
+    assert len(list(BagReader(outs / "bag").messages({TOPICS["image"]}))) == 2
+    for fmt, out in (("mcap", outs / "none"), ("ros1", outs / "none.bag")):
         with pytest.raises(BagError, match=f"{tmp_path}: none of the 3 frames could be read; no bag written"):
             make_bag(tmp_path, out, fmt, frames=range(1, 4))
         assert not out.exists()

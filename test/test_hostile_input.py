@@ -113,7 +113,7 @@ def test_make_bag_names_the_file_and_line_of_a_stamp_no_bag_can_hold(tmp_path, s
     seq = tmp_path / "seq"
     seq.mkdir()
     shutil.copy(src / "camera.yaml", seq)
-    rows = [r for r in (src / "images.txt").read_text().splitlines() if r and not r.startswith("#")][:3]
+    rows = [r for r in (src / "images.txt").read_text().splitlines() if r and not r.startswith("#")][:6]
     rows[1] = f"{stamp} {rows[1].split(maxsplit=1)[1]}"
     (seq / "images.txt").write_text("# timestamp path\n" + "".join(f"{r.split()[0]} {src.resolve() / r.split(maxsplit=1)[1]}\n"
                                                                   for r in rows))
