@@ -430,7 +430,7 @@ def test_eval_warns_of_folder_arguments_that_share_frames_or_a_reference_it_did_
     assert main(argv) == 0
     assert (f"warning: {seq}:120-122 and a later folder argument share frames (kitti-07 frames 121-122): the pairs "
             "within them are evaluated twice and count twice in the means") in capsys.readouterr().err
-    assert json.loads((tmp_path / "e.json").read_text())["ratio"]["pairs"] == 4  # (121, 122) twice
+    assert json.loads((tmp_path / "e.json").read_text())["methods"]["ratio"]["pairs"] == 4  # (121, 122) twice
     assert main([*argv[:2], f"{seq}:122-123", *argv[3:]]) == 0 and "warning" not in capsys.readouterr().err  # 1 frame
     argv[argv.index("ratio")] = "ratio,gms"  # two methods, the reference (ratio+magsac) not among them: said
     assert main([*argv[:2], *argv[3:]]) == 0
@@ -504,7 +504,7 @@ def test_eval_outputs_are_checked_before_the_evaluation_and_written_where_asked(
     plot, out = tmp_path / "new" / "curves", tmp_path / "other" / "eval.json"  # folders not there yet; no suffix
     run = subprocess.run(cmd + ["--plot", str(plot), "--json", str(out)], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
-    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and set(json.loads(out.read_text())) == {"ratio", "oracle"}
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and set(json.loads(out.read_text())["methods"]) == {"ratio", "oracle"}
     assert "eval: kitti-07:120-122: 2 pairs, mean inlier ratio" in run.stderr and "eval: oracle: 2 pairs x 1 run(s) in" in run.stderr
     afile = tmp_path / "afile"
     afile.write_text("")
