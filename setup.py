@@ -27,7 +27,7 @@ setup(
     entry_points={
         "console_scripts": [
             "nmnet = nmnet_ros.cli:main",
-            "nmnet_node = nmnet_ros.cli:node_main",
+            "nmnet_node = nmnet_ros.entry:node_main",
         ],
     },
 )

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .datasets import DatasetError, Trajectory, Unfit, pose_problem, poses_from_xyzq, read_table
+from .trajectory import DatasetError, Trajectory, Unfit, pose_problem, poses_from_xyzq, read_table
 
 GROUND_TRUTH = Path("state_groundtruth_estimate0") / "data.csv"
 

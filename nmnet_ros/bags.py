@@ -20,12 +20,13 @@ from rosbags.typesys.msg import get_types_from_msg
 from rosbags.typesys.store import Typestore
 
 from .caminfo import camera_from_info
-from .datasets import BAG_SUFFIXES, Trajectory, is_sequence_folder, poses_from_xyzq
+from .datasets import BAG_SUFFIXES, is_sequence_folder
 from .dds import is_depth
 from .geometry import Camera, CameraError
 from .imgconv import IMAGE_TYPES, MAX_PIXELS, ImageError, decode_message, pixel_cap
 from .posemsg import stamp_seconds
 from .tftree import TfError, TfTree
+from .trajectory import Trajectory, poses_from_xyzq
 
 
 class BagError(ValueError):

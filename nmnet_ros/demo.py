@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 
 from . import replay
-from .cli import ros_missing
+from .entry import ros_missing
 from .outputs import output_folder, written_here
 
 SAMPLE_BAG = Path(__file__).parent / "sample" / "kitti07_120-159"

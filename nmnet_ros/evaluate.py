@@ -19,7 +19,7 @@ import numpy as np
 
 from .bf16 import PRECISIONS
 from .cache import FeatureCache
-from .cli import file_path, gaps, progress, whole
+from .cli import file_path, gaps, whole
 from .datasets import FOLDERS_READ
 from .detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
 from .geometry import pose_auc, pose_error_deg
@@ -28,6 +28,7 @@ from .model import NEIGHBORS, load_model
 from .model_fast import precision_note
 from .outputs import output_file, save_figure, write_json
 from .pairs import PairData, load_pairs, parse_seq_spec, shared_frames, spec_label, to_correspondences
+from .progress import progress
 from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from .selectors import METHODS, NETWORK, ROBUST, build
 

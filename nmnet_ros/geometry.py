@@ -487,3 +487,13 @@ def pose_auc(errors: np.ndarray, thresholds: tuple[float, ...] = (5.0, 10.0, 20.
         e = np.r_[errors[:last], th]
         aucs.append(float(np.trapezoid(r, x=e) / th))
     return aucs
+
+
+def quat_to_rot(q: np.ndarray) -> np.ndarray:
+    """(qx, qy, qz, qw) -> 3x3 rotation matrix; (..., 4) -> (..., 3, 3)."""
+    q = np.asarray(q, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a zero quaternion gives NaN: the caller's to refuse
+        x, y, z, w = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+                     np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+                     np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .datasets import DatasetError, Trajectory, check_seconds, floats, read_table
 from .geometry import Camera
+from .trajectory import DatasetError, Trajectory, check_seconds, floats, read_table
 
 CAMERAS = ("image_0", "image_2")  # grey left, colour left: the two downloads' left camera
 

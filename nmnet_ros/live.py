@@ -22,15 +22,15 @@ import numpy as np
 
 from .bags import BagError, BagReader, choose_topics, typestore, window_side
 from .caminfo import info_fields
-from .datasets import Trajectory
 from .dds import LARGE_FRAMES_PROFILE
 from .geometry import Camera
 from .imgconv import matches_of_cloud
 from .mcap_out import McapOutput
 from .params import NODE_NAME
 from .posemsg import estimate_of_message
-from .replay import PairScores, truth_missed
+from .scoring import PairScores, truth_missed
 from .tracks import TrackLengths
+from .trajectory import Trajectory
 
 # the ROS packages the live mode runs on: the player's (this module) and the node's (node.py, its own process);
 # test_core_no_ros checks that both modules import no other
@@ -280,7 +280,7 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
 
 def recording_summary(path: Path, truth: Trajectory | None) -> tuple[dict, dict]:
     """A recording of the node's outputs, read once: its ``~/relative_pose`` stream scored against ``truth`` as the
-    offline replay scores its results (:class:`~nmnet_ros.replay.PairScores`; "no estimate" is a failure), and the
+    offline replay scores its results (:class:`~nmnet_ros.scoring.PairScores`; "no estimate" is a failure), and the
     feature tracks of its ``~/matches`` (:class:`~nmnet_ros.tracks.TrackLengths`, counted as they are read).
 
     Each pose message is relative to the frame of the message before it (see :mod:`nmnet_ros.posemsg`); the

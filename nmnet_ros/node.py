@@ -10,13 +10,6 @@ from __future__ import annotations
 
 # isort: off
 from .one_arena import ENABLED as _ONE_ARENA  # noqa: F401 - first: before any thread allocates
-
-if __name__ == "__main__":  # `python -m nmnet_ros.node`: the console script's path, one line (not a traceback) without ROS
-    import sys
-
-    from .cli import node_main
-
-    sys.exit(node_main())
 # isort: on
 
 import re

@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .cache import FeatureCache
-from .cli import progress
 from .datasets import LABEL_THRESHOLD, Sequence, epipolar_labels, has_baseline
 from .features import Features
 from .matching import Matches, match_descriptors
+from .progress import progress
 
 if TYPE_CHECKING:
     from .selectors import Correspondences

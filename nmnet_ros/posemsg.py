@@ -16,8 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .datasets import quat_to_rot
-from .geometry import PoseEstimate, rotation_error_deg
+from .geometry import PoseEstimate, quat_to_rot, rotation_error_deg
 
 ROT_SIGMA_DEG = 0.5  # per-axis rotation sigma at REF_MATCHES selected matches (the node's pose_sigma_rotation_deg)
 ROT_SIGMA_RAD = np.radians(ROT_SIGMA_DEG)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .datasets import Trajectory, poses_from_xyzq
+from .trajectory import Trajectory, poses_from_xyzq
 
 Edge = tuple[str, str]  # (parent frame, child frame) as published
 

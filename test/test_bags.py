@@ -687,7 +687,8 @@ def test_a_summary_without_scored_pairs_is_strict_json(tmp_path):
 def test_a_live_summary_says_why_frames_dropped_and_what_it_cannot_know_without_the_nodes_report(capsys, tmp_path):
     """The live replay's summary takes the reasons for dropped frames from the node's last /diagnostics; a node that
     never reported (it ended before its first 1 Hz report) leaves them unknown (null in JSON), not 0 or a crash."""
-    from nmnet_ros.replay import error_summary, live_summary
+    from nmnet_ros.replay import live_summary
+    from nmnet_ros.scoring import error_summary
     from nmnet_ros.tracks import track_summary
 
     stats = {"published": 10, "results": 7, "latency_ms": [40.0, 60.0], "diagnostics": {}}
@@ -1083,8 +1084,8 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     """`--gt FILE` (TUM) and `--gt-tf world:camera_gt` (the bag's /tf) give the numbers the bag's own PoseStamped
     give, offline and in --live's scoring; a bad file, or a transform the bag lacks, stops the replay before the output
     file is made, naming the file and line or the transforms there are."""
-    from nmnet_ros.datasets import read_tum
     from nmnet_ros.live import recording_summary
+    from nmnet_ros.trajectory import read_tum
 
     tum = data_dir("kitti-07") / "groundtruth.txt"  # the poses the bag was made with, at the frames' stamps
     runs = {}
@@ -1131,9 +1132,10 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
     later, is 30 mm off at KITTI's speed), and the scores are close to the exact-stamp bag's, offline and as --live
     scores them (median errors 0.022 / 0.300 deg against 0.033 / 0.305: across a frame the path between the KITTI
     poses bends, which interpolation cannot know). Ground truth on another clock is named."""
-    from nmnet_ros.datasets import Sequence, between, read_tum
+    from nmnet_ros.datasets import Sequence
     from nmnet_ros.live import recording_summary
     from nmnet_ros.posemsg import rot_to_quat
+    from nmnet_ros.trajectory import between, read_tum
 
     seq = Sequence.load(data_dir("kitti-07"))  # the raw bag's frames 60-65, and the pose after them
     mocap = tmp_path / "mocap"

@@ -18,7 +18,7 @@ def test_imports_no_ros(modules):
     code = (
         "import sys\n"
         + "".join(f"import nmnet_ros.{m}\n" for m in modules)
-        + "from nmnet_ros.cli import ROS_PACKAGES\n"
+        + "from nmnet_ros.entry import ROS_PACKAGES\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in ROS_PACKAGES | {'nav_msgs'})\n"
         "print(','.join(bad))\n"
     )
@@ -87,7 +87,7 @@ def test_the_number_types_take_what_they_should_and_nothing_else():
 # what a Python without rclpy and the message packages sees (arm64 with no ROS 2 sourced): their imports fail
 def _without_ros(code: str, cwd, blocked: str = "ROS_PACKAGES") -> subprocess.CompletedProcess:
     """Run ``code`` in a Python where the ``blocked`` packages (an expression; default: all of ROS) fail to import."""
-    block = f"import sys\nfrom nmnet_ros.cli import ROS_PACKAGES\nfor m in {blocked}: sys.modules[m] = None\n"
+    block = f"import sys\nfrom nmnet_ros.entry import ROS_PACKAGES\nfor m in {blocked}: sys.modules[m] = None\n"
     return subprocess.run([sys.executable, "-c", block + code], capture_output=True, text=True, cwd=cwd, timeout=300)
 
 
@@ -97,7 +97,7 @@ def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
     its output file."""
     from nmnet_ros.demo import SAMPLE_BAG
 
-    node = _without_ros("from nmnet_ros.cli import node_main\nsys.exit(node_main(['nmnet_node']))", tmp_path)
+    node = _without_ros("from nmnet_ros.entry import node_main\nsys.exit(node_main(['nmnet_node']))", tmp_path)
     module = _without_ros("import runpy\nsys.argv = ['node.py']\nrunpy.run_module('nmnet_ros.node', run_name='__main__')",
                           tmp_path)  # what `python -m nmnet_ros.node` runs
     live = _without_ros(f"from nmnet_ros.cli import main\nsys.exit(main(['replay', {str(SAMPLE_BAG)!r}, '--live', "
@@ -125,7 +125,7 @@ def test_live_mode_checks_every_ros_package_the_player_and_node_import():
     """require_ros's list covers the ROS packages live.py and node.py import (it would miss a new one otherwise)."""
     import ast
 
-    from nmnet_ros.cli import ROS_PACKAGES
+    from nmnet_ros.entry import ROS_PACKAGES
     from nmnet_ros.live import LIVE_ROS_PACKAGES
 
     imported = set()
@@ -146,7 +146,7 @@ def test_node_help_lists_topics_service_and_every_parameter_without_ros(tmp_path
     ROS arguments is a parameter value, not a request for help."""
     from nmnet_ros.params import PARAMS, STARTUP_ONLY
 
-    done = _without_ros("from nmnet_ros.cli import node_main\nsys.exit(node_main(['nmnet_node', '--help']))", tmp_path)
+    done = _without_ros("from nmnet_ros.entry import node_main\nsys.exit(node_main(['nmnet_node', '--help']))", tmp_path)
     assert done.returncode == 0 and done.stderr == "", done.stderr
     out = done.stdout
     assert out.startswith("usage: nmnet_node") and "~/reset (std_srvs/srv/Trigger)" in out and "~/relative_pose" in out
@@ -155,7 +155,7 @@ def test_node_help_lists_topics_service_and_every_parameter_without_ros(tmp_path
         assert line is not None, name
         assert line.startswith(f"  {name} *" if name in STARTUP_ONLY else f"  {name} ("), line
         assert json.dumps(default) in line and (rng is None or str(rng[-1]) in line), line
-    ros_value = _without_ros("from nmnet_ros.cli import node_main\n"
+    ros_value = _without_ros("from nmnet_ros.entry import node_main\n"
                              "sys.exit(node_main(['nmnet_node', '--ros-args', '-p', 'weights:=-h']))", tmp_path)
     assert ros_value.returncode == 2 and "'rclpy' is missing" in ros_value.stderr  # went on to start the node
 
@@ -168,10 +168,10 @@ def test_version_is_the_packages_and_stray_node_arguments_are_refused(tmp_path):
     xml = re.search(r"<version>(.+)</version>", (ROOT / "package.xml").read_text()).group(1)
     assert f'version="{xml}"' in (ROOT / "setup.py").read_text()
     tool = subprocess.run([sys.executable, "-m", "nmnet_ros.cli", "--version"], capture_output=True, text=True)
-    node = _without_ros("from nmnet_ros.cli import node_main\nsys.exit(node_main(['nmnet_node', '--version']))", tmp_path)
+    node = _without_ros("from nmnet_ros.entry import node_main\nsys.exit(node_main(['nmnet_node', '--version']))", tmp_path)
     for done in (tool, node):
         assert done.returncode == 0 and done.stdout == f"nmnet_ros {xml}\n", done.stdout + done.stderr
-    stray = _without_ros("from nmnet_ros.cli import node_main\n"
+    stray = _without_ros("from nmnet_ros.entry import node_main\n"
                          "sys.exit(node_main(['nmnet_node', '-p', 'max_keypoints:=1000']))", tmp_path)
     assert stray.returncode == 2 and stray.stderr.startswith(
         "nmnet_node: error: unrecognized arguments: -p max_keypoints:=1000; node settings go after --ros-args"), stray.stderr

@@ -61,7 +61,7 @@ def test_ground_truth_stamped_in_nanoseconds_is_named_with_the_conversion(tmp_pa
     import shutil as sh
     import subprocess
 
-    from nmnet_ros.datasets import read_tum
+    from nmnet_ros.trajectory import read_tum
 
     src = data_dir("kitti-07") / "groundtruth.txt"
     rows = [ln.split() for ln in src.read_text().splitlines() if ln and not ln.startswith("#")]
@@ -167,8 +167,8 @@ def test_ground_truth_at_its_own_rate_is_interpolated_to_the_frames_stamps():
     true one (the nearest pose would be 0.126 deg off, four times the front end's median error on KITTI). A pose at
     the stamp itself is taken as is; in a gap of the stream only stamps within half a spacing of its ends have one,
     as before the first pose and after the last."""
-    from nmnet_ros.datasets import Trajectory, between
     from nmnet_ros.geometry import rotation_error_deg
+    from nmnet_ros.trajectory import Trajectory, between
 
     def true_pose(t: float) -> np.ndarray:
         a = np.radians(30.0) * t
@@ -637,7 +637,7 @@ def test_opencv_yaml_calibrations_read_as_the_camera_info_yaml(tmp_path):
 
 def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
     """images.txt, pairs.txt and groundtruth.txt (also `nmnet replay --gt`) name the file, the line and its columns."""
-    from nmnet_ros.datasets import read_tum
+    from nmnet_ros.trajectory import read_tum
 
     dst = tmp_path / "entry"
     shutil.copytree(data_dir("strecha-entry-p10"), dst)
@@ -690,7 +690,7 @@ def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
 
 def test_a_pose_given_as_text_is_seven_numbers_with_a_rotation():
     """--gt-camera's 'x y z qx qy qz qw' (TUM's order): anything else is refused, saying what is expected."""
-    from nmnet_ros.datasets import parse_pose
+    from nmnet_ros.trajectory import parse_pose
 
     T = parse_pose("0.3, 0 0.5 -0.5 0.5 -0.5 0.5")
     np.testing.assert_allclose(T[:3, 3], [0.3, 0, 0.5])

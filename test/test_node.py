@@ -22,7 +22,7 @@ rclpy = pytest.importorskip("rclpy")
 
 
 def quat_to_rot(q):
-    from nmnet_ros.datasets import quat_to_rot as q2r
+    from nmnet_ros.geometry import quat_to_rot as q2r
 
     return q2r(q)
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nmnet_ros.datasets import between, quat_to_rot
+from nmnet_ros.geometry import quat_to_rot
 from nmnet_ros.posemsg import rot_to_quat
 from nmnet_ros.tftree import TfError, TfTree
+from nmnet_ros.trajectory import between
 
 RNG = np.random.default_rng(7)
 
