@@ -26,8 +26,8 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
-            "nmnet = nmnet_ros.cli:main",
-            "nmnet_node = nmnet_ros.entry:node_main",
+            "nmnet = nmnet_ros.tools.cli:main",
+            "nmnet_node = nmnet_ros.ros.entry:node_main",
         ],
     },
 )

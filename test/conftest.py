@@ -22,7 +22,7 @@ def data_dir(name: str) -> Path:
 
 @pytest.fixture(scope="session")
 def detector():
-    from nmnet_ros.features import HessianAffine
+    from nmnet_ros.core.features import HessianAffine
 
     return HessianAffine()
 
@@ -30,14 +30,14 @@ def detector():
 @pytest.fixture(scope="session", params=["hessian-affine", "hessian-affine-fast"])
 def any_detector(request, detector):
     """The kornia reference and the fast Hessian-affine (both must pass the feature tests)."""
-    from nmnet_ros.fast_hessaff import FastHessianAffine
+    from nmnet_ros.core.fast_hessaff import FastHessianAffine
 
     return detector if request.param == "hessian-affine" else FastHessianAffine()
 
 
 @pytest.fixture(scope="session")
 def cache(detector, tmp_path_factory):
-    from nmnet_ros.cache import FeatureCache
+    from nmnet_ros.io.cache import FeatureCache
 
     # NMNET_TEST_CACHE reuses a developer's feature cache between runs; CI starts empty.
     root = os.environ.get("NMNET_TEST_CACHE") or tmp_path_factory.mktemp("features")
@@ -46,7 +46,7 @@ def cache(detector, tmp_path_factory):
 
 def robust_cost(pose, x0: np.ndarray, x1: np.ndarray, sigma: float) -> float:
     """The Cauchy-robust Sampson cost refine_pose minimises, written out independently."""
-    from nmnet_ros.geometry import skew
+    from nmnet_ros.core.geometry import skew
 
     E = skew(pose.t / np.linalg.norm(pose.t)) @ pose.R
     h0, h1 = np.c_[x0, np.ones(len(x0))], np.c_[x1, np.ones(len(x1))]
@@ -61,7 +61,7 @@ def planar_views(seed: int, frames: int = 4) -> tuple[object, list[tuple[np.ndar
     ``seed`` draws the plane's tilt, the turn per frame (~1 deg) and the direction of the 0.25 m steps."""
     import cv2
 
-    from nmnet_ros.datasets import Sequence
+    from nmnet_ros.io.datasets import Sequence
 
     seq = Sequence.load(data_dir("strecha-fountain-p11"))
     img, K = seq.image(0), seq.camera.K

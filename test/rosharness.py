@@ -119,7 +119,7 @@ def image_msg(img: np.ndarray, stamp: float, frame_id: str = "camera", encoding:
     """sensor_msgs/Image from an array (mono8 or bgr8 unless encoding given)."""
     from sensor_msgs.msg import Image
 
-    from nmnet_ros.imgconv import array_to_image_fields
+    from nmnet_ros.interface.imgconv import array_to_image_fields
 
     msg = Image()
     for k, v in array_to_image_fields(img).items():
@@ -147,8 +147,8 @@ def compressed_msg(img: np.ndarray, stamp: float, data: bytes | None = None):
 
 def camera_info_msg(K: np.ndarray, dist: np.ndarray, width: int, height: int):
     """sensor_msgs/CameraInfo (plumb_bob; P = [K | 0], as for a monocular camera), as the live player builds it."""
-    from nmnet_ros.geometry import Camera
-    from nmnet_ros.live import camera_info_msg as build
+    from nmnet_ros.core.geometry import Camera
+    from nmnet_ros.tools.live import camera_info_msg as build
 
     msg = build(Camera(K, dist, width, height))
     msg.header.frame_id = "camera"

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nmnet_ros.bags import (
+from nmnet_ros.io.bags import (
     BagError,
     BagReader,
     bag_ground_truth,
@@ -27,14 +27,14 @@ from nmnet_ros.bags import (
     tf_ground_truth,
     typestore,
 )
-from nmnet_ros.demo import SAMPLE_BAG
-from nmnet_ros.make_bag import make_bag
+from nmnet_ros.tools.demo import SAMPLE_BAG
+from nmnet_ros.tools.make_bag import make_bag
 
 from .conftest import ROOT, data_dir, planar_views
 
 
 def nmnet(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "nmnet_ros.cli", *args], capture_output=True, text=True, cwd=ROOT, timeout=timeout)
+    return subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", *args], capture_output=True, text=True, cwd=ROOT, timeout=timeout)
 
 
 def read_output(path: Path) -> dict[str, int]:
@@ -287,7 +287,7 @@ def test_an_interrupted_make_bag_leaves_a_readable_bag_of_the_frames_written(tmp
     out = tmp_path / out
     written = (out / "bag.mcap") if fmt == "mcap" else out
     with open(tmp_path / "log", "w") as log:
-        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "make-bag", str(data_dir("kitti-07")), str(out),
+        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", "make-bag", str(data_dir("kitti-07")), str(out),
                                  "--format", fmt], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True,
                                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         t_end = time.monotonic() + 120
@@ -433,7 +433,7 @@ def test_an_output_that_would_overwrite_an_input_or_a_recording_is_refused_befor
 
 
 def test_an_output_overwrites_only_an_earlier_output_or_an_empty_file(tmp_path):
-    from nmnet_ros.mcap_out import McapOutput
+    from nmnet_ros.io.mcap_out import McapOutput
 
     empty, ours, text = tmp_path / "empty.mcap", tmp_path / "ours.mcap", tmp_path / "notes.mcap"
     empty.write_bytes(b"")  # e.g. made by `touch` or a tool that reserves the name
@@ -488,7 +488,7 @@ def test_a_bag_whose_content_is_not_its_extensions_format_is_named(bags, tmp_pat
 def test_sigterm_mid_replay_leaves_valid_output(tmp_path):
     out = tmp_path / "o.mcap"
     # the kornia reference detector takes ~1 s per frame here: 40 frames leave a wide window to interrupt in
-    proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out", str(out),
+    proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", "replay", str(SAMPLE_BAG), "--out", str(out),
                              "--detector", "hessian-affine"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(15)
     assert proc.poll() is None, "replay finished before it could be interrupted"
@@ -503,7 +503,7 @@ def test_demo_without_shared_data(tmp_path):
     """`nmnet demo` needs only the package: shipped weights and sample bag."""
     pkg = tmp_path / "pkg"
     shutil.copytree(ROOT / "nmnet_ros", pkg / "nmnet_ros", ignore=shutil.ignore_patterns("__pycache__"))
-    r = subprocess.run([sys.executable, "-m", "nmnet_ros.cli", "demo", "--out-dir", str(tmp_path / "demo")], cwd=pkg,
+    r = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "demo", "--out-dir", str(tmp_path / "demo")], cwd=pkg,
                        capture_output=True, text=True, timeout=1200)
     assert r.returncode == 0, r.stderr
     print(r.stdout)
@@ -546,7 +546,7 @@ def live_replay_playing(tmp_path: Path, seconds: float):
     leaving. SIGINT reaches it as a terminal's Ctrl-C does: a shell's background job (CI) starts with it ignored."""
     log = tmp_path / "replay.log"
     with open(log, "w") as fh:
-        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--out",
+        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", "replay", str(SAMPLE_BAG), "--out",
                                  str(tmp_path / "live.mcap"), "--json", str(tmp_path / "s.json"), "--live", "--rate", "0.1"],
                                 cwd=ROOT, stdout=fh, stderr=subprocess.STDOUT, text=True,
                                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
@@ -612,7 +612,7 @@ def test_two_live_replays_on_one_domain_do_not_hear_each_other(tmp_path):
     env = {**os.environ, "ROS_DOMAIN_ID": str(unique_domain())}
     parts = {"first": ("0", "1.5"), "second": ("2", "1.5")}  # seconds after the first frame; KITTI frames 0.104 s apart
     frames = {"first": 15, "second": 14}  # frames 0-14 and 20-33
-    procs = {name: subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "replay", str(SAMPLE_BAG), "--live",
+    procs = {name: subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", "replay", str(SAMPLE_BAG), "--live",
                                      "--rate", "0.5", "--start", a, "--duration", d, "--out", str(tmp_path / f"{name}.mcap"),
                                      "--json", str(tmp_path / f"{name}.json")], cwd=ROOT, env=env, stdout=subprocess.PIPE,
                                     stderr=subprocess.STDOUT, text=True)
@@ -651,7 +651,7 @@ def test_a_standing_camera_is_scored_on_its_rotation(tmp_path):
     """Pairs whose ground truth did not move (standing, or turning on the spot) have no direction to score, so the
     pose AUC leaves them out; their rotation is scored on its own (EuRoC V1_01's first second: the MAV on the
     ground), offline and as --live scores its recording, and the summary says so. Before, they were not scored."""
-    from nmnet_ros.live import recording_summary
+    from nmnet_ros.tools.live import recording_summary
 
     bag = tmp_path / "euroc"
     assert make_bag(data_dir("euroc-v101-cam0"), bag, "mcap", frames=range(0, 21)) == 21
@@ -667,7 +667,7 @@ def test_a_standing_camera_is_scored_on_its_rotation(tmp_path):
 
 def summary_json(summary: dict, tmp_path: Path) -> str:
     """What ``--json`` writes for ``summary``."""
-    from nmnet_ros.outputs import write_json
+    from nmnet_ros.io.outputs import write_json
 
     write_json(tmp_path / "s.json", summary)
     return (tmp_path / "s.json").read_text()
@@ -687,9 +687,9 @@ def test_a_summary_without_scored_pairs_is_strict_json(tmp_path):
 def test_a_live_summary_says_why_frames_dropped_and_what_it_cannot_know_without_the_nodes_report(capsys, tmp_path):
     """The live replay's summary takes the reasons for dropped frames from the node's last /diagnostics; a node that
     never reported (it ended before its first 1 Hz report) leaves them unknown (null in JSON), not 0 or a crash."""
-    from nmnet_ros.replay import live_summary
-    from nmnet_ros.scoring import error_summary
-    from nmnet_ros.tracks import track_summary
+    from nmnet_ros.core.tracks import track_summary
+    from nmnet_ros.tools.replay import live_summary
+    from nmnet_ros.tools.scoring import error_summary
 
     stats = {"published": 10, "results": 7, "latency_ms": [40.0, 60.0], "diagnostics": {}}
     s = live_summary(stats, 2.0, error_summary([]), track_summary([]), {"k": 8})
@@ -764,11 +764,11 @@ def test_a_replay_keeps_no_frames_matches_and_sums_up_the_tracks_it_wrote(raw_ba
     hour of a 30 Hz camera would take 6 GB), and its tracks are those of the ~/matches it wrote."""
     import pickle
 
-    from nmnet_ros.imgconv import matches_of_cloud
-    from nmnet_ros.mcap_out import McapOutput
-    from nmnet_ros.pipeline import Frontend
-    from nmnet_ros.replay import process_bag
-    from nmnet_ros.tracks import track_summary
+    from nmnet_ros.core.pipeline import Frontend
+    from nmnet_ros.core.tracks import track_summary
+    from nmnet_ros.interface.imgconv import matches_of_cloud
+    from nmnet_ros.io.mcap_out import McapOutput
+    from nmnet_ros.tools.replay import process_bag
 
     out = McapOutput(tmp_path / "o.mcap")
     run, n, _ = process_bag(BagReader(raw_bag), out, Frontend(None, {}), progress=False, log=lambda _: None)
@@ -972,7 +972,7 @@ def test_replay_skips_frames_stamped_again_or_backwards_as_the_node_does(raw_bag
 def test_replay_restarts_the_chain_at_a_frame_stamped_far_back_as_the_node_does(raw_bag, tmp_path):
     """A frame more than time_jump_s before the one before (a bag recorded in a loop) is kept and starts a new
     chain: it gets no relative pose; the frame after it is related to it again."""
-    from nmnet_ros.posemsg import estimate_of_message
+    from nmnet_ros.interface.posemsg import estimate_of_message
 
     restamp_images(raw_bag, tmp_path / "looped", shifted_from(5, -3))  # the last two frames, 3 s earlier
     r, s = replay_json(tmp_path / "looped", tmp_path)
@@ -1012,7 +1012,7 @@ def test_a_replay_before_a_plane_says_so_and_records_a_covariance_reaching_the_p
     import cv2
     from rosbags.highlevel import AnyReader
 
-    from nmnet_ros.posemsg import rot_to_quat
+    from nmnet_ros.interface.posemsg import rot_to_quat
 
     cam, views = planar_views(seed=5, frames=5)
     seq = tmp_path / "wall"
@@ -1084,8 +1084,8 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     """`--gt FILE` (TUM) and `--gt-tf world:camera_gt` (the bag's /tf) give the numbers the bag's own PoseStamped
     give, offline and in --live's scoring; a bad file, or a transform the bag lacks, stops the replay before the output
     file is made, naming the file and line or the transforms there are."""
-    from nmnet_ros.live import recording_summary
-    from nmnet_ros.trajectory import read_tum
+    from nmnet_ros.io.trajectory import read_tum
+    from nmnet_ros.tools.live import recording_summary
 
     tum = data_dir("kitti-07") / "groundtruth.txt"  # the poses the bag was made with, at the frames' stamps
     runs = {}
@@ -1132,10 +1132,10 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
     later, is 30 mm off at KITTI's speed), and the scores are close to the exact-stamp bag's, offline and as --live
     scores them (median errors 0.022 / 0.300 deg against 0.033 / 0.305: across a frame the path between the KITTI
     poses bends, which interpolation cannot know). Ground truth on another clock is named."""
-    from nmnet_ros.datasets import Sequence
-    from nmnet_ros.live import recording_summary
-    from nmnet_ros.posemsg import rot_to_quat
-    from nmnet_ros.trajectory import between, read_tum
+    from nmnet_ros.interface.posemsg import rot_to_quat
+    from nmnet_ros.io.datasets import Sequence
+    from nmnet_ros.io.trajectory import between, read_tum
+    from nmnet_ros.tools.live import recording_summary
 
     seq = Sequence.load(data_dir("kitti-07"))  # the raw bag's frames 60-65, and the pose after them
     mocap = tmp_path / "mocap"
@@ -1186,7 +1186,7 @@ def robot_tf_bag(src: Path, dst: Path, cam_in_body: np.ndarray) -> None:
     /tf, base_link -> camera_link on /tf_static, camera_link -> camera_optical republished on /tf at every frame and
     stamped 0.1 s ahead (ROS 1's static_transform_publisher); ``cam_in_body`` is camera_optical in base_link, the
     frame the images name."""
-    from nmnet_ros.posemsg import rot_to_quat
+    from nmnet_ros.interface.posemsg import rot_to_quat
 
     ts = typestore()
     T = ts.types
@@ -1310,7 +1310,7 @@ def tum_rgbd_bag(src: Path, dst: Path, cam_in_body: np.ndarray) -> None:
     from rosbags.rosbag1 import Reader, Writer
     from rosbags.typesys.msg import get_types_from_msg
 
-    from nmnet_ros.posemsg import rot_to_quat
+    from nmnet_ros.interface.posemsg import rot_to_quat
 
     ts = typestore(ros1=True)
     ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf/msg/tfMessage"))
@@ -1375,8 +1375,8 @@ def test_a_tum_rgbd_style_ros1_bag_replays_with_its_tf_ground_truth(tmp_path):
 def test_an_rgbd_cameras_depth_images_are_not_taken_for_its_frames(tmp_path):
     """An RGB-D camera's bag (TUM RGB-D's, a RealSense's) holds depth images beside the frames: the frames are taken,
     and said so, with their own camera_info (the replay asked to choose). Two cameras still ask."""
-    from nmnet_ros.bags import pick_image
-    from nmnet_ros.dds import is_depth
+    from nmnet_ros.interface.dds import is_depth
+    from nmnet_ros.io.bags import pick_image
 
     image, info = "sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo"
     for topic in ("/camera/depth/image", "/camera/aligned_depth_to_color/image_raw", "/cam/depth_registered/image_raw",
@@ -1411,7 +1411,7 @@ def test_an_rgbd_cameras_depth_images_are_not_taken_for_its_frames(tmp_path):
 def test_a_pose_topic_is_ground_truth_by_itself_only_when_its_name_says_so():
     """Motion-capture and simulator names are taken; a robot's other poses are not; two named ones ask for a choice,
     listing the whole bag."""
-    from nmnet_ros.bags import looks_like_ground_truth, pick_ground_truth
+    from nmnet_ros.io.bags import looks_like_ground_truth, pick_ground_truth
 
     for topic in ("/ground_truth/pose", "/groundtruth", "/gt", "/robot/gt/odom", "/vicon/drone/drone", "/mocap/rb1/pose",
                   "/vrpn_mocap/robot/pose", "/optitrack/robot", "/leica/position"):
@@ -1431,7 +1431,7 @@ def test_ground_truth_of_a_tracked_body_scores_the_camera_with_its_place_on_the_
     wheel odometry on /odom and nav2's /goal_pose. The topic named as ground truth is taken, the others are named as
     not taken; --gt-camera (the camera's optical frame on the body) gives the scores of the camera's own poses, and
     without it the scores are those of the wrong frame."""
-    from nmnet_ros.posemsg import rot_to_quat
+    from nmnet_ros.interface.posemsg import rot_to_quat
 
     ts = typestore()
     T, q = ts.types, rot_to_quat(np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]))  # optical axes in base_link
@@ -1525,7 +1525,7 @@ def camera_bag(src: Path, dst: Path, topics: dict[str, str]) -> None:
     import cv2
     from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
-    from nmnet_ros.imgconv import image_to_array
+    from nmnet_ros.interface.imgconv import image_to_array
 
     ts = typestore()
     with Reader(src) as r, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
@@ -1564,7 +1564,7 @@ def test_one_cameras_transports_and_a_stereo_pairs_camera_info_are_told_apart(ra
     for image, info in (("/right/image_raw", "/right/camera_info"), ("/left/image_raw/compressed", "/left/camera_info")):
         assert choose_topics(reader, image_topic=image)["camera_info"] == info
     assert choose_topics(reader, "/right/image_raw", "/left/camera_info")["camera_info"] == "/left/camera_info"
-    from nmnet_ros.bags import camera_namespace
+    from nmnet_ros.io.bags import camera_namespace
 
     assert [camera_namespace(t) for t in ("/left/image_raw/compressed", "/image_raw", "/a/b/image")] == ["/left", "", "/a/b"]
     r, s = replay_json(stereo, tmp_path, "--image-topic", "/right/image_raw", "--gt",
@@ -1576,7 +1576,7 @@ def test_frames_resized_from_their_calibration_get_k_scaled(raw_bag, tmp_path):
     """A half-size stream with the full-size camera_info: K is scaled (and said so), and the poses stay right."""
     import cv2
 
-    from nmnet_ros.imgconv import array_to_image_fields, image_to_array
+    from nmnet_ros.interface.imgconv import array_to_image_fields, image_to_array
 
     def half(topic, msg):
         if msg.__class__.__name__.endswith("Image"):
@@ -1671,7 +1671,7 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     assert s["selector"] == "ratio+magsac" and s["parameters"]["pose_estimator"] == "classic"  # the node's name for it
     from rosbags.highlevel import AnyReader
 
-    from nmnet_ros.posemsg import NO_ESTIMATE_VAR
+    from nmnet_ros.interface.posemsg import NO_ESTIMATE_VAR
 
     with AnyReader([tmp_path / "b.mcap"]) as reader:  # the recorded covariance has the file's rotation sigma
         covs = [reader.deserialize(raw, c.msgtype).pose.covariance.reshape(6, 6) for c, _, raw in reader.messages()

@@ -2,10 +2,10 @@
 
 import pytest
 
-from nmnet_ros.bags import BagReader, read_frames
-from nmnet_ros.bench import bench_pipeline
-from nmnet_ros.bf16 import native_bf16
-from nmnet_ros.demo import SAMPLE_BAG
+from nmnet_ros.core.bf16 import native_bf16
+from nmnet_ros.io.bags import BagReader, read_frames
+from nmnet_ros.tools.bench import bench_pipeline
+from nmnet_ros.tools.demo import SAMPLE_BAG
 
 
 def test_pipeline_bench_reports_every_stage_and_the_baseline():
@@ -32,8 +32,8 @@ def test_bench_threads_option_sets_and_restores_the_thread_counts(capsys):
     import cv2
     import torch
 
-    from nmnet_ros.bench import cpu_threads
-    from nmnet_ros.cli import main
+    from nmnet_ros.tools.bench import cpu_threads
+    from nmnet_ros.tools.cli import main
 
     before = torch.get_num_threads(), cv2.getNumThreads()
     n = before[0] + 1  # differs from the counts before, so the restore is checked
@@ -50,7 +50,7 @@ def test_bench_threads_option_sets_and_restores_the_thread_counts(capsys):
 
 def test_hd_bench_times_full_size_against_resize_width():
     """The high-resolution line: 1920x1080 frames at full size and downscaled by resize_width, detection and rate."""
-    from nmnet_ros.bench import bench_hd
+    from nmnet_ros.tools.bench import bench_hd
 
     it, _ = read_frames(BagReader(SAMPLE_BAG))
     frames = [f for _, f in zip(range(3), it, strict=False)]

@@ -6,9 +6,9 @@ import shutil
 import numpy as np
 import pytest
 
-from nmnet_ros.cache import FeatureCache
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.detectors import make_detector
+from nmnet_ros.core.detectors import make_detector
+from nmnet_ros.io.cache import FeatureCache
+from nmnet_ros.io.datasets import Sequence
 
 from .conftest import data_dir
 
@@ -39,7 +39,7 @@ def test_a_changed_image_and_one_of_the_same_name_elsewhere_get_their_own_featur
 
 
 def test_a_missing_image_is_named_by_the_cache_before_any_detection(tmp_path):
-    from nmnet_ros.datasets import DatasetError
+    from nmnet_ros.io.datasets import DatasetError
 
     folder = tmp_path / "seq"
     folder.mkdir()
@@ -53,7 +53,7 @@ def test_a_missing_image_is_named_by_the_cache_before_any_detection(tmp_path):
 def test_a_cache_that_cannot_be_written_is_said_once_and_the_work_goes_on(tmp_path):
     """--cache naming a file (or NMNET_CACHE, or a read-only home) stopped eval and train with '[Errno 20] Not a
     directory' after the first frame's detection; the features are a cache: said once, computed without it."""
-    from nmnet_ros.cli import main
+    from nmnet_ros.tools.cli import main
 
     (tmp_path / "afile").write_text("not a folder")
     seq = Sequence.load(data_dir("strecha-fountain-p11"))

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nmnet_ros.bags import typestore
-from nmnet_ros.caminfo import camera_from_info, fit_camera
-from nmnet_ros.geometry import Camera, CameraError
+from nmnet_ros.core.geometry import Camera, CameraError
+from nmnet_ros.interface.caminfo import camera_from_info, fit_camera
+from nmnet_ros.io.bags import typestore
 
 K_FULL = np.array([[800.0, 0, 640.5], [0, 810.0, 360.25], [0, 0, 1]])
 D = np.array([-0.2, 0.05, 0.001, -0.0005, 0.0])

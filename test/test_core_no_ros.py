@@ -8,9 +8,11 @@ import pytest
 
 from .conftest import ROOT
 
-CORE = ["features", "matching", "neighbors", "geometry", "planes", "datasets", "asl", "kitti", "tum", "model", "pairs", "metrics",
-        "cache", "train", "neighbor_study", "imgconv", "caminfo", "posemsg", "outputs"]
-OFFLINE_TOOLS = ["evaluate", "replay", "make_bag", "bench", "cli", "params"]  # nmnet replay (offline), eval, make-bag, bench
+CORE = ["core.features", "core.matching", "core.neighbors", "core.geometry", "core.planes", "io.datasets", "io.asl",
+        "io.kitti", "io.tum", "core.model", "io.pairs", "core.metrics", "io.cache", "tools.train",
+        "tools.neighbor_study", "interface.imgconv", "interface.caminfo", "interface.posemsg", "io.outputs"]
+# nmnet replay (offline), eval, make-bag, bench
+OFFLINE_TOOLS = ["tools.evaluate", "tools.replay", "tools.make_bag", "tools.bench", "tools.cli", "interface.params"]
 
 
 @pytest.mark.parametrize("modules", [CORE, OFFLINE_TOOLS], ids=["core", "offline-tools"])
@@ -18,7 +20,7 @@ def test_imports_no_ros(modules):
     code = (
         "import sys\n"
         + "".join(f"import nmnet_ros.{m}\n" for m in modules)
-        + "from nmnet_ros.entry import ROS_PACKAGES\n"
+        + "from nmnet_ros.ros.entry import ROS_PACKAGES\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in ROS_PACKAGES | {'nav_msgs'})\n"
         "print(','.join(bad))\n"
     )
@@ -27,14 +29,14 @@ def test_imports_no_ros(modules):
 
 
 def test_cli_lists_subcommands():
-    out = subprocess.run([sys.executable, "-m", "nmnet_ros.cli", "--help"], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "--help"], capture_output=True, text=True, check=True).stdout
     for sub in ("demo", "train", "eval", "neighbors", "bench"):
         assert sub in out
 
 
 def test_cli_without_a_command_fails_naming_the_commands():
     """Bare `nmnet` is a usage error (exit 2, as argparse's), not success: a script would read it as done."""
-    run = subprocess.run([sys.executable, "-m", "nmnet_ros.cli"], capture_output=True, text=True)
+    run = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli"], capture_output=True, text=True)
     assert run.returncode == 2 and run.stdout == ""
     assert "error: name a command: " in run.stderr and "replay" in run.stderr.splitlines()[-1]
 
@@ -61,7 +63,7 @@ def test_cli_without_a_command_fails_naming_the_commands():
 def test_a_count_or_gap_out_of_range_is_refused_naming_the_option(argv, option, why, capsys):
     """The tools' counts and frame gaps are checked as they are parsed (exit 2, argparse's line naming the option)
     instead of failing later with Python's or numpy's message, or running on nothing."""
-    from nmnet_ros.cli import main
+    from nmnet_ros.tools.cli import main
 
     with pytest.raises(SystemExit) as stop:
         main(argv)
@@ -73,7 +75,7 @@ def test_the_number_types_take_what_they_should_and_nothing_else():
     """cli.gaps' two forms; cli.bounded's bound (inclusive, or strict as --rate's) and its refusal of NaN and inf."""
     import argparse
 
-    from nmnet_ros.cli import bounded, gaps, whole
+    from nmnet_ros.tools.cli import bounded, gaps, whole
 
     assert gaps("1-3") == (1, 2, 3) and gaps("1,5") == (1, 5) and gaps("4") == (4,)
     assert whole(0)("0") == 0 and bounded(float, 0.0, "seconds")("0") == 0.0
@@ -87,7 +89,7 @@ def test_the_number_types_take_what_they_should_and_nothing_else():
 # what a Python without rclpy and the message packages sees (arm64 with no ROS 2 sourced): their imports fail
 def _without_ros(code: str, cwd, blocked: str = "ROS_PACKAGES") -> subprocess.CompletedProcess:
     """Run ``code`` in a Python where the ``blocked`` packages (an expression; default: all of ROS) fail to import."""
-    block = f"import sys\nfrom nmnet_ros.entry import ROS_PACKAGES\nfor m in {blocked}: sys.modules[m] = None\n"
+    block = f"import sys\nfrom nmnet_ros.ros.entry import ROS_PACKAGES\nfor m in {blocked}: sys.modules[m] = None\n"
     return subprocess.run([sys.executable, "-c", block + code], capture_output=True, text=True, cwd=cwd, timeout=300)
 
 
@@ -95,12 +97,12 @@ def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
     """nmnet_node (the console script or `python -m nmnet_ros.node`) and `nmnet replay --live` stop with one line
     naming the package and the two ways to get it (exit code 2, no traceback); the live replay stops before it makes
     its output file."""
-    from nmnet_ros.demo import SAMPLE_BAG
+    from nmnet_ros.tools.demo import SAMPLE_BAG
 
-    node = _without_ros("from nmnet_ros.entry import node_main\nsys.exit(node_main(['nmnet_node']))", tmp_path)
+    node = _without_ros("from nmnet_ros.ros.entry import node_main\nsys.exit(node_main(['nmnet_node']))", tmp_path)
     module = _without_ros("import runpy\nsys.argv = ['node.py']\nrunpy.run_module('nmnet_ros.node', run_name='__main__')",
                           tmp_path)  # what `python -m nmnet_ros.node` runs
-    live = _without_ros(f"from nmnet_ros.cli import main\nsys.exit(main(['replay', {str(SAMPLE_BAG)!r}, '--live', "
+    live = _without_ros(f"from nmnet_ros.tools.cli import main\nsys.exit(main(['replay', {str(SAMPLE_BAG)!r}, '--live', "
                         "'--out', 'live.mcap']))", tmp_path)
     for done, prog in ((node, "nmnet_node"), (module, "nmnet_node"), (live, "nmnet replay")):
         assert done.returncode == 2, done.stderr
@@ -112,9 +114,9 @@ def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
 def test_live_replay_names_a_missing_message_package_the_node_needs(tmp_path):
     """A ROS install with rclpy but without std_srvs (the node's ~/reset): `nmnet replay --live` names the package
     before it starts the node or makes its output file (the node would exit before subscribing)."""
-    from nmnet_ros.demo import SAMPLE_BAG
+    from nmnet_ros.tools.demo import SAMPLE_BAG
 
-    live = _without_ros(f"from nmnet_ros.cli import main\nsys.exit(main(['replay', {str(SAMPLE_BAG)!r}, '--live', "
+    live = _without_ros(f"from nmnet_ros.tools.cli import main\nsys.exit(main(['replay', {str(SAMPLE_BAG)!r}, '--live', "
                         "'--out', 'live.mcap']))", tmp_path, blocked="['std_srvs']")
     assert live.returncode == 2, live.stderr
     assert live.stderr.startswith("nmnet replay: error: the ROS 2 Python package 'std_srvs' is missing"), live.stderr
@@ -125,11 +127,11 @@ def test_live_mode_checks_every_ros_package_the_player_and_node_import():
     """require_ros's list covers the ROS packages live.py and node.py import (it would miss a new one otherwise)."""
     import ast
 
-    from nmnet_ros.entry import ROS_PACKAGES
-    from nmnet_ros.live import LIVE_ROS_PACKAGES
+    from nmnet_ros.ros.entry import ROS_PACKAGES
+    from nmnet_ros.tools.live import LIVE_ROS_PACKAGES
 
     imported = set()
-    for module in ("live", "node"):
+    for module in ("tools/live", "ros/node"):
         tree = ast.parse((ROOT / "nmnet_ros" / f"{module}.py").read_text())
         for n in ast.walk(tree):
             if isinstance(n, ast.Import):
@@ -144,9 +146,9 @@ def test_node_help_lists_topics_service_and_every_parameter_without_ros(tmp_path
     """`nmnet_node --help` prints the usage, topics, the reset service and every parameter with its default and
     range (from params.PARAMS, so it cannot drift), without starting the node, so also without ROS; a -h among the
     ROS arguments is a parameter value, not a request for help."""
-    from nmnet_ros.params import PARAMS, STARTUP_ONLY
+    from nmnet_ros.interface.params import PARAMS, STARTUP_ONLY
 
-    done = _without_ros("from nmnet_ros.entry import node_main\nsys.exit(node_main(['nmnet_node', '--help']))", tmp_path)
+    done = _without_ros("from nmnet_ros.ros.entry import node_main\nsys.exit(node_main(['nmnet_node', '--help']))", tmp_path)
     assert done.returncode == 0 and done.stderr == "", done.stderr
     out = done.stdout
     assert out.startswith("usage: nmnet_node") and "~/reset (std_srvs/srv/Trigger)" in out and "~/relative_pose" in out
@@ -155,7 +157,7 @@ def test_node_help_lists_topics_service_and_every_parameter_without_ros(tmp_path
         assert line is not None, name
         assert line.startswith(f"  {name} *" if name in STARTUP_ONLY else f"  {name} ("), line
         assert json.dumps(default) in line and (rng is None or str(rng[-1]) in line), line
-    ros_value = _without_ros("from nmnet_ros.entry import node_main\n"
+    ros_value = _without_ros("from nmnet_ros.ros.entry import node_main\n"
                              "sys.exit(node_main(['nmnet_node', '--ros-args', '-p', 'weights:=-h']))", tmp_path)
     assert ros_value.returncode == 2 and "'rclpy' is missing" in ros_value.stderr  # went on to start the node
 
@@ -167,11 +169,11 @@ def test_version_is_the_packages_and_stray_node_arguments_are_refused(tmp_path):
 
     xml = re.search(r"<version>(.+)</version>", (ROOT / "package.xml").read_text()).group(1)
     assert f'version="{xml}"' in (ROOT / "setup.py").read_text()
-    tool = subprocess.run([sys.executable, "-m", "nmnet_ros.cli", "--version"], capture_output=True, text=True)
-    node = _without_ros("from nmnet_ros.entry import node_main\nsys.exit(node_main(['nmnet_node', '--version']))", tmp_path)
+    tool = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "--version"], capture_output=True, text=True)
+    node = _without_ros("from nmnet_ros.ros.entry import node_main\nsys.exit(node_main(['nmnet_node', '--version']))", tmp_path)
     for done in (tool, node):
         assert done.returncode == 0 and done.stdout == f"nmnet_ros {xml}\n", done.stdout + done.stderr
-    stray = _without_ros("from nmnet_ros.entry import node_main\n"
+    stray = _without_ros("from nmnet_ros.ros.entry import node_main\n"
                          "sys.exit(node_main(['nmnet_node', '-p', 'max_keypoints:=1000']))", tmp_path)
     assert stray.returncode == 2 and stray.stderr.startswith(
         "nmnet_node: error: unrecognized arguments: -p max_keypoints:=1000; node settings go after --ros-args"), stray.stderr
@@ -182,7 +184,7 @@ def test_demo_runs_its_offline_part_without_ros(tmp_path):
     bag offline, next to the SIFT baseline; its output holds the node's topics."""
     from mcap.reader import make_reader
 
-    done = _without_ros("from nmnet_ros.cli import main\nsys.exit(main(['demo', '--out-dir', 'demo']))", tmp_path)
+    done = _without_ros("from nmnet_ros.tools.cli import main\nsys.exit(main(['demo', '--out-dir', 'demo']))", tmp_path)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "1/2 live: skipped: the ROS 2 Python package 'rclpy' is missing" in done.stdout
     summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
@@ -220,8 +222,8 @@ def test_ros_wheels_are_required_only_where_pypi_has_them():
 def test_an_output_file_that_cannot_be_written_is_refused_before_the_work(argv, example, tmp_path, capsys):
     """A folder given as --json, or a file in the way of its folder: said at once, not after minutes of work (which
     the result was lost with); a folder not there yet is made."""
-    from nmnet_ros.cli import main
-    from nmnet_ros.outputs import output_file
+    from nmnet_ros.io.outputs import output_file
+    from nmnet_ros.tools.cli import main
 
     afile = tmp_path / "afile"
     afile.write_text("")
@@ -238,7 +240,7 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_work(argv, 
                                            (" , ", "--methods names none; choose from nmnet, ")])
 def test_eval_methods_unknown_or_none_are_refused_before_any_work(methods, said, capsys):
     """An empty --methods evaluated nothing: an empty table and plot, exit 0."""
-    from nmnet_ros.cli import main
+    from nmnet_ros.tools.cli import main
 
     assert main(["eval", "no_such_folder", "--methods", methods]) == 2
     assert f"nmnet eval: error: {said}" in capsys.readouterr().err
@@ -246,7 +248,7 @@ def test_eval_methods_unknown_or_none_are_refused_before_any_work(methods, said,
 
 def test_a_demo_out_dir_that_is_a_file_is_named(tmp_path, capsys):
     """`nmnet demo --out-dir` a file said '[Errno 17] File exists', through a file '[Errno 20] Not a directory'."""
-    from nmnet_ros.cli import main
+    from nmnet_ros.tools.cli import main
 
     afile = tmp_path / "afile"
     afile.write_text("a user's file")
@@ -260,7 +262,7 @@ def test_a_demo_out_dir_that_is_a_file_is_named(tmp_path, capsys):
 def test_a_replay_into_an_existing_folder_or_a_file_without_mcap_suffix_is_refused_naming_one(tmp_path, capsys):
     """`--out results` where results/ exists (rosbag2's -o takes a folder) said only 'Is a directory'; `--out out`
     wrote an MCAP file that neither rosbags nor nmnet replay could then open, lacking the suffix."""
-    from nmnet_ros.cli import main
+    from nmnet_ros.tools.cli import main
 
     assert main(["replay", str(ROOT / "nmnet_ros" / "sample" / "kitti07_120-159"), "--out", str(tmp_path)]) == 2
     assert f"--out {tmp_path} is a folder: give a file name, e.g. {tmp_path / 'nmnet.mcap'}" in capsys.readouterr().err

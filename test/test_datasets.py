@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import yaml
 
-from nmnet_ros.datasets import DatasetError, Sequence, has_baseline
-from nmnet_ros.pairs import select_pairs
+from nmnet_ros.io.datasets import DatasetError, Sequence, has_baseline
+from nmnet_ros.io.pairs import select_pairs
 
 from .conftest import data_dir
 
@@ -33,9 +33,9 @@ def test_static_camera_pairs_are_excluded():
 def test_eval_and_neighbors_say_why_a_folder_gives_no_pairs(tmp_path, capsys):
     """nmnet eval said 'no pairs with ground truth and motion to evaluate' for a standing camera, a range too short
     for the gaps and a --stride past the range alike; it names which, as train does, before any features."""
-    from nmnet_ros.cache import FeatureCache
-    from nmnet_ros.detectors import make_detector
-    from nmnet_ros.pairs import load_pairs
+    from nmnet_ros.core.detectors import make_detector
+    from nmnet_ros.io.cache import FeatureCache
+    from nmnet_ros.io.pairs import load_pairs
 
     cache = FeatureCache(make_detector("sift"), tmp_path)
     euroc, kitti = data_dir("euroc-v101-cam0"), data_dir("kitti-07")
@@ -48,7 +48,7 @@ def test_eval_and_neighbors_say_why_a_folder_gives_no_pairs(tmp_path, capsys):
         load_pairs([f"{kitti}:3-5"], (1,), cache, stride=5)
     assert not any(tmp_path.iterdir())  # no features computed
     assert len(load_pairs([f"{kitti}:3-5"], (1,), cache, stride=2)) == 1  # (4, 5)
-    from nmnet_ros.cli import main  # nmnet neighbors printed an empty table, "0 pairs", exit 0
+    from nmnet_ros.tools.cli import main  # nmnet neighbors printed an empty table, "0 pairs", exit 0
 
     assert main(["neighbors", str(euroc), "--gaps", "1", "--detector", "sift", "--cache", str(tmp_path)]) == 2
     assert f"nmnet neighbors: error: no pairs to evaluate: {euroc}: none of its 94 frame pairs" in capsys.readouterr().err
@@ -61,7 +61,7 @@ def test_ground_truth_stamped_in_nanoseconds_is_named_with_the_conversion(tmp_pa
     import shutil as sh
     import subprocess
 
-    from nmnet_ros.trajectory import read_tum
+    from nmnet_ros.io.trajectory import read_tum
 
     src = data_dir("kitti-07") / "groundtruth.txt"
     rows = [ln.split() for ln in src.read_text().splitlines() if ln and not ln.startswith("#")]
@@ -87,7 +87,7 @@ def test_ground_truth_stamped_in_nanoseconds_is_named_with_the_conversion(tmp_pa
 def test_a_frame_range_outside_the_folder_is_named(tmp_path):
     """'PATH:a-b' past the last frame (or with a > b) is an error naming the folder's frames, not an IndexError
     (eval, train; make-bag before it writes anything)."""
-    from nmnet_ros.make_bag import make_bag
+    from nmnet_ros.tools.make_bag import make_bag
 
     with pytest.raises(DatasetError, match="frames 157-999 are not all in the folder; it has frames 0-159"):
         make_bag(data_dir("kitti-07"), tmp_path / "b", "mcap", frames=range(157, 1000))
@@ -103,7 +103,7 @@ def test_a_frame_range_outside_the_folder_is_named(tmp_path):
 def test_a_frame_range_not_of_the_form_a_b_says_the_form(tmp_path):
     """'PATH:5' or 'PATH:-5-10' is an error saying the form, not Python's "not enough values to unpack" or "invalid
     literal for int()"; a folder whose own name ends in ':digits' is a folder."""
-    from nmnet_ros.pairs import parse_seq_spec
+    from nmnet_ros.io.pairs import parse_seq_spec
 
     assert parse_seq_spec("d/kitti-07:0-119") == ("d/kitti-07", range(0, 120))
     assert parse_seq_spec("d/kitti-07") == ("d/kitti-07", None)
@@ -117,7 +117,7 @@ def test_a_frame_range_not_of_the_form_a_b_says_the_form(tmp_path):
 
 def test_a_folder_given_with_a_trailing_slash_is_named_by_its_own_name():
     """'kitti-07/:120-159' (a shell's completion adds the slash) was named ':120-159' in eval's tables."""
-    from nmnet_ros.pairs import spec_label
+    from nmnet_ros.io.pairs import spec_label
 
     assert spec_label("d/kitti-07/:120-159") == spec_label("d/kitti-07:120-159") == "kitti-07:120-159"
     assert spec_label("d/kitti-07/") == spec_label("d/kitti-07") == "kitti-07"
@@ -167,8 +167,8 @@ def test_ground_truth_at_its_own_rate_is_interpolated_to_the_frames_stamps():
     true one (the nearest pose would be 0.126 deg off, four times the front end's median error on KITTI). A pose at
     the stamp itself is taken as is; in a gap of the stream only stamps within half a spacing of its ends have one,
     as before the first pose and after the last."""
-    from nmnet_ros.geometry import rotation_error_deg
-    from nmnet_ros.trajectory import Trajectory, between
+    from nmnet_ros.core.geometry import rotation_error_deg
+    from nmnet_ros.io.trajectory import Trajectory, between
 
     def true_pose(t: float) -> np.ndarray:
         a = np.radians(30.0) * t
@@ -201,9 +201,9 @@ def test_frames_the_ground_truth_does_not_cover_are_left_out_not_given_another_f
     """A groundtruth.txt without a pose at some image's stamp (a tracker that lost the camera): that frame has no
     pose, its pairs are not selected for eval/train, a bag made from the folder has no ground truth for it, and a
     file whose stamps match no image is refused, naming it."""
-    from nmnet_ros.bags import BagReader
-    from nmnet_ros.make_bag import TOPICS, make_bag
-    from nmnet_ros.pairs import load_pairs
+    from nmnet_ros.io.bags import BagReader
+    from nmnet_ros.io.pairs import load_pairs
+    from nmnet_ros.tools.make_bag import TOPICS, make_bag
 
     src = data_dir("strecha-entry-p10")
     dst = tmp_path / "entry"
@@ -239,7 +239,7 @@ def test_empty_folder_names_missing_camera_yaml(tmp_path):
 def test_a_bag_given_to_eval_names_replay(tmp_path):
     """A bag (its file or its folder) given to eval or train said "not a directory" or "camera.yaml: missing"; it
     says it is a recording and names the tool that scores one."""
-    from nmnet_ros.demo import SAMPLE_BAG
+    from nmnet_ros.tools.demo import SAMPLE_BAG
 
     said = r"this is a recording \(a bag\), which nmnet replay scores against its ground truth \(`nmnet replay BAG"
     bag = next(SAMPLE_BAG.glob("*.mcap"))
@@ -303,7 +303,7 @@ def test_a_tum_rgbd_folder_named_as_tum_names_it_takes_tums_published_calibratio
     shutil.copy(data_dir("euroc-v101-cam0") / "camera.yaml", root / "camera.yaml")  # 752x480: the file is read
     with pytest.raises(DatasetError, match="camera.yaml describes 752x480 frames but 0.png is 640x480"):
         Sequence.load(root)
-    from nmnet_ros.cli import main
+    from nmnet_ros.tools.cli import main
 
     (root / "camera.yaml").unlink()
     assert main(["eval", str(root), "--gaps", "1", "--methods", "ratio"]) == 2  # no groundtruth.txt: said after the note
@@ -315,7 +315,7 @@ def test_a_euroc_asl_download_reads_as_it_is(tmp_path):
     """EuRoC's ASL layout (mav0/cam0/data.csv stamped in ns, sensor.yaml, the body's ground truth with qw first) reads
     as it is, the camera's poses those of the body composed with the camera's T_BS: it was only named, with its bag's
     replay. Built here from the shipped EuRoC excerpt, whose camera poses are the body's composed with T_BS."""
-    from nmnet_ros.posemsg import rot_to_quat
+    from nmnet_ros.interface.posemsg import rot_to_quat
 
     src = Sequence.load(data_dir("euroc-v101-cam0"))
     mav = tmp_path / "V1_01_easy" / "mav0"
@@ -425,9 +425,9 @@ def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_re
     """A downscaled copy of a dataset (images half camera.yaml's size) was evaluated with the full-size K: poses
     and labels silently wrong (ratio+magsac AUC@5 0.0 on Strecha fountain). K is fitted to the images, with a
     note; a crop or a folder of mixed sizes is named."""
-    from nmnet_ros.cache import FeatureCache
-    from nmnet_ros.detectors import make_detector
-    from nmnet_ros.pairs import make_pair
+    from nmnet_ros.core.detectors import make_detector
+    from nmnet_ros.io.cache import FeatureCache
+    from nmnet_ros.io.pairs import make_pair
 
     src = data_dir("strecha-fountain-p11")
     for name in ("camera.yaml", "images.txt", "groundtruth.txt"):
@@ -444,7 +444,7 @@ def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_re
     cache = FeatureCache(make_detector("sift"), tmp_path / "cache")
     inliers = [make_pair(seq, 0, 1, cache).labels.mean() for seq in (full, half)]
     assert inliers[1] > 0.7 * inliers[0] > 0.1, inliers  # with the full-size K: 0.03 of the half-size matches
-    from nmnet_ros.cli import main  # the tools say it: eval and train (their tests), neighbors here
+    from nmnet_ros.tools.cli import main  # the tools say it: eval and train (their tests), neighbors here
 
     assert main(["neighbors", f"{tmp_path}:0-2", "--gaps", "1", "--stride", "1", "--detector", "sift", "--cache",
                  str(tmp_path / "cache")]) == 0
@@ -479,8 +479,8 @@ def test_a_missing_truncated_or_empty_image_is_named_not_read_in_part(tmp_path, 
             seq.image(i)
     # make-bag stopped at frame 1 and left a ROS 2 bag without metadata.yaml (unreadable, and in a rerun's way):
     # the frames it cannot read are skipped, named; with none readable, nothing is left behind
-    from nmnet_ros.bags import BagError, BagReader
-    from nmnet_ros.make_bag import TOPICS, make_bag
+    from nmnet_ros.io.bags import BagError, BagReader
+    from nmnet_ros.tools.make_bag import TOPICS, make_bag
 
     outs = tmp_path.with_name(tmp_path.name + "_out")  # beside the sequence folder: no tool writes into its input
     assert make_bag(tmp_path, outs / "bag", "mcap", frames=range(0, 5)) == 2  # frames 0 and 4
@@ -554,7 +554,7 @@ def test_kalibr_camchain_and_euroc_sensor_yaml_read_as_the_camera_info_yaml(tmp_
     """EuRoC's sensor.yaml and a Kalibr camchain give the camera the ROS camera_info YAML of the same calibration
     gives (the shipped EuRoC folder's camera.yaml); of a camchain's cameras, the one on the image topic. Other camera
     models, distortions and malformed entries are named. Before, each was "malformed camera YAML ('camera_matrix')"."""
-    from nmnet_ros.datasets import read_camera_yaml
+    from nmnet_ros.io.datasets import read_camera_yaml
 
     ros = read_camera_yaml(data_dir("euroc-v101-cam0") / "camera.yaml")
     (tmp_path / "sensor.yaml").write_text(EUROC_SENSOR_YAML)
@@ -604,7 +604,7 @@ def test_opencv_yaml_calibrations_read_as_the_camera_info_yaml(tmp_path):
     give the camera the ROS camera_info YAML of the same calibration gives; ORB-SLAM3's fisheye too."""
     import cv2
 
-    from nmnet_ros.datasets import read_camera_yaml
+    from nmnet_ros.io.datasets import read_camera_yaml
 
     ros = read_camera_yaml(data_dir("euroc-v101-cam0") / "camera.yaml")
     fs = cv2.FileStorage(str(tmp_path / "calib.yaml"), cv2.FILE_STORAGE_WRITE)
@@ -637,7 +637,7 @@ def test_opencv_yaml_calibrations_read_as_the_camera_info_yaml(tmp_path):
 
 def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
     """images.txt, pairs.txt and groundtruth.txt (also `nmnet replay --gt`) name the file, the line and its columns."""
-    from nmnet_ros.trajectory import read_tum
+    from nmnet_ros.io.trajectory import read_tum
 
     dst = tmp_path / "entry"
     shutil.copytree(data_dir("strecha-entry-p10"), dst)
@@ -690,7 +690,7 @@ def test_a_malformed_line_is_named_with_its_file_and_line(tmp_path):
 
 def test_a_pose_given_as_text_is_seven_numbers_with_a_rotation():
     """--gt-camera's 'x y z qx qy qz qw' (TUM's order): anything else is refused, saying what is expected."""
-    from nmnet_ros.trajectory import parse_pose
+    from nmnet_ros.io.trajectory import parse_pose
 
     T = parse_pose("0.3, 0 0.5 -0.5 0.5 -0.5 0.5")
     np.testing.assert_allclose(T[:3, 3], [0.3, 0, 0.5])

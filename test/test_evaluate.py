@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from nmnet_ros.evaluate import difference_lines, paired_auc_difference, per_sequence_table
-from nmnet_ros.geometry import pose_auc
+from nmnet_ros.core.geometry import pose_auc
+from nmnet_ros.tools.evaluate import difference_lines, paired_auc_difference, per_sequence_table
 
 
 def test_identical_methods_differ_by_nothing():

@@ -4,9 +4,9 @@ import cv2
 import numpy as np
 import pytest
 
-from nmnet_ros.features import Features, SiftSimilarity
-from nmnet_ros.geometry import homography_jacobian
-from nmnet_ros.matching import match_descriptors
+from nmnet_ros.core.features import Features, SiftSimilarity
+from nmnet_ros.core.geometry import homography_jacobian
+from nmnet_ros.core.matching import match_descriptors
 
 from .conftest import data_dir
 
@@ -67,7 +67,7 @@ def test_affine_frames_follow_the_homography_on_boat(any_detector):
 
 def test_fast_detector_keeps_the_reference_accuracy_on_boat(detector):
     """Fast path: frame error within 0.02 of the kornia path and >= 90 % of its correct matches."""
-    from nmnet_ros.fast_hessaff import FastHessianAffine
+    from nmnet_ros.core.fast_hessaff import FastHessianAffine
 
     root = data_dir("oxford-boat")
     fast = FastHessianAffine()
@@ -86,7 +86,7 @@ def test_fast_detector_keeps_the_reference_accuracy_on_boat(detector):
 @pytest.mark.parametrize("shape", [(16, 16), (17, 40), (376, 1241)])
 def test_hessian_kernel_equals_the_opencv_sobel_formula(shape):
     """The fused kernel gives cv2.Sobel's 5x5 determinant of the Hessian, borders (reflect-101) included."""
-    from nmnet_ros.fast_hessaff import FastHessianAffine
+    from nmnet_ros.core.fast_hessaff import FastHessianAffine
 
     img = cv2.GaussianBlur(np.random.default_rng(1).random(shape, np.float32), (0, 0), 1.5)
     s2 = 2.3**2
@@ -116,7 +116,7 @@ def _maxima_reference(r: np.ndarray, threshold: float) -> np.ndarray:
 def test_maxima_kernel_finds_the_dilation_maxima_in_their_order():
     """Same maxima, same order (level, row, column) as the dilation reference; plateaus that overflow
     the first buffer are counted and found on the second run."""
-    from nmnet_ros.fast_hessaff import _maxima_kernel
+    from nmnet_ros.core.fast_hessaff import _maxima_kernel
 
     rng = np.random.default_rng(2)
     r = np.stack([cv2.GaussianBlur(rng.random((60, 90), np.float32), (0, 0), 1.2) for _ in range(5)]) - 0.45
@@ -134,7 +134,7 @@ def test_maxima_kernel_finds_the_dilation_maxima_in_their_order():
 def test_extrema_survive_a_plateau_larger_than_the_maxima_buffer():
     """A flat response above threshold: 38 x 38 tied maxima, more than the buffer sized for strict
     maxima (20 x 20); all are found, none refined, and those far enough inside are kept."""
-    from nmnet_ros.fast_hessaff import FastHessianAffine
+    from nmnet_ros.core.fast_hessaff import FastHessianAffine
 
     rows = FastHessianAffine()._extrema(np.ones((3, 40, 40), np.float32), 0)
     # sigma = 1.6 * 2^(1/3) = 2.02, half the measurement region 6.05 px, 5 px margin: x, y in 12..27

@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.geometry import (
+from nmnet_ros.core.geometry import (
     CHEIRALITY_DEPTH,
     Camera,
     CameraError,
@@ -22,7 +21,8 @@ from nmnet_ros.geometry import (
     translation_error_deg,
     weighted_eight_point,
 )
-from nmnet_ros.pairs import make_pair
+from nmnet_ros.io.datasets import Sequence
+from nmnet_ros.io.pairs import make_pair
 
 from .conftest import data_dir, robust_cost
 

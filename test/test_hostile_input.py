@@ -16,14 +16,14 @@ import cv2
 import numpy as np
 import pytest
 
-from nmnet_ros.bags import BagReader, read_frames
-from nmnet_ros.caminfo import camera_from_info
-from nmnet_ros.geometry import Camera, CameraError
-from nmnet_ros.imgconv import ImageError, decode_compressed, decode_message, pixel_cap
-from nmnet_ros.make_bag import make_bag
-from nmnet_ros.outputs import written_here
-from nmnet_ros.pipeline import stamp_order, stamp_warning
-from nmnet_ros.posemsg import stamp_seconds
+from nmnet_ros.core.geometry import Camera, CameraError
+from nmnet_ros.core.pipeline import stamp_order, stamp_warning
+from nmnet_ros.interface.caminfo import camera_from_info
+from nmnet_ros.interface.imgconv import ImageError, decode_compressed, decode_message, pixel_cap
+from nmnet_ros.interface.posemsg import stamp_seconds
+from nmnet_ros.io.bags import BagReader, read_frames
+from nmnet_ros.io.outputs import written_here
+from nmnet_ros.tools.make_bag import make_bag
 
 from .conftest import data_dir
 
@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def nmnet(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "nmnet_ros.cli", *args], capture_output=True, text=True, cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", *args], capture_output=True, text=True, cwd=ROOT,
                           timeout=600)
 
 
@@ -197,7 +197,7 @@ def test_a_calibration_that_cannot_be_true_is_refused_naming_what_is_wrong(chang
 def test_real_calibrations_stay_plausible():
     """The shipped data's cameras, EuRoC's strong barrel lens and a T265-like fisheye pass the checks."""
     for name in ("kitti-07", "euroc-v101-cam0", "strecha-fountain-p11"):
-        from nmnet_ros.datasets import Sequence
+        from nmnet_ros.io.datasets import Sequence
 
         assert Sequence.load(data_dir(name)).camera.width > 0
     Camera(np.array([[285.7, 0, 425.0], [0, 285.7, 398.0], [0, 0, 1]]), np.array([-0.0067, 0.0433, -0.0415, 0.0079]),
@@ -222,9 +222,9 @@ def test_replay_skips_frames_over_the_pixel_cap_and_with_invalid_stamps(tmp_path
     is 1e9 or more is skipped as invalid_stamp."""
     from rosbags.rosbag2 import Writer
 
-    from nmnet_ros.bags import typestore
-    from nmnet_ros.caminfo import info_fields
-    from nmnet_ros.datasets import Sequence
+    from nmnet_ros.interface.caminfo import info_fields
+    from nmnet_ros.io.bags import typestore
+    from nmnet_ros.io.datasets import Sequence
 
     seq = Sequence.load(data_dir("kitti-07"))
     ts = typestore()

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from nmnet_ros.imgconv import ImageError, decode_compressed, image_to_array
+from nmnet_ros.interface.imgconv import ImageError, decode_compressed, image_to_array
 
 from .conftest import data_dir
 
@@ -103,7 +103,7 @@ def test_a_compressed_depth_stream_is_named_not_called_corrupt():
 @pytest.mark.parametrize("name", ["sift", "hessian-affine-fast"])
 def test_a_12_bit_camera_in_mono16_gives_the_features_of_its_8_bit_frame(name):
     """A 12-bit camera's mono16 frames (white = 4095) are not 16x too dark for the detectors."""
-    from nmnet_ros.detectors import make_detector
+    from nmnet_ros.core.detectors import make_detector
 
     path = sorted((data_dir("kitti-07") / "images").iterdir())[0]
     gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
@@ -117,7 +117,7 @@ def test_a_12_bit_camera_in_mono16_gives_the_features_of_its_8_bit_frame(name):
 def test_one_cameras_16_bit_frames_share_a_scale_whatever_their_exposure():
     """A 12-bit camera's frames peaking at 1500, 2000 or 4095 are all scaled by 4095 (by the bits in use, a frame
     peaking at 2000 was scaled by 2047, twice the next one's contrast); 8-bit data in 16 bits keeps 255."""
-    from nmnet_ros.features import full_scale
+    from nmnet_ros.core.features import full_scale
 
     for peak, white in ((1500, 4095), (2000, 4095), (3000, 4095), (4095, 4095), (1000, 1023), (200, 255), (16000, 16383),
                         (65535, 65535)):

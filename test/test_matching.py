@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nmnet_ros.matching import match_descriptors
+from nmnet_ros.core.matching import match_descriptors
 
 
 def unit(x):
@@ -70,8 +70,8 @@ def _same_matches(d0, d1, config=None):
 
 @pytest.mark.parametrize("seq, i, j", [("kitti-07", 120, 123), ("strecha-herz-jesus-p25", 0, 1)])
 def test_bfloat16_screen_finds_the_float32_matches_on_real_descriptors(seq, i, j):
-    from nmnet_ros.datasets import Sequence
-    from nmnet_ros.fast_hessaff import FastHessianAffine
+    from nmnet_ros.core.fast_hessaff import FastHessianAffine
+    from nmnet_ros.io.datasets import Sequence
 
     from .conftest import data_dir
 
@@ -156,11 +156,11 @@ def test_frontend_readies_the_screening_kernels_before_the_first_frame():
     import subprocess
     import sys
 
-    from nmnet_ros.bf16 import native_bf16
+    from nmnet_ros.core.bf16 import native_bf16
 
     if not native_bf16():
         pytest.skip("this CPU has no native bfloat16: matching runs the float32 GEMM, nothing to compile")
-    code = ("from nmnet_ros import matching; from nmnet_ros.pipeline import Frontend; "
+    code = ("from nmnet_ros import matching; from nmnet_ros.core.pipeline import Frontend; "
             "before = len(matching._recheck.signatures); Frontend(); print(before, len(matching._recheck.signatures))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["0", "1"]

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from nmnet_ros.model import NMNet, WeightsError, load_model, network_input
-from nmnet_ros.neighbors import compatibility_neighbors
+from nmnet_ros.core.model import NMNet, WeightsError, load_model, network_input
+from nmnet_ros.core.neighbors import compatibility_neighbors
 
 
 def inputs(n, seed=0):
@@ -87,7 +87,7 @@ def test_fast_model_logits_equal_the_reference(variant, n, k):
     of the float64 truth. A bare 1e-4 in float32 failed on an AMD EPYC CPU (1.9e-4 at N=2000,
     growing ~1e-5 of the activation scale per block) while the float64 check held to 5e-13.
     """
-    from nmnet_ros.model_fast import FastNMNet
+    from nmnet_ros.core.model_fast import FastNMNet
 
     model = load_model(variant=variant)
     x, k0, a0, k1, a1 = inputs(n, seed=n + k)
@@ -105,7 +105,7 @@ def test_fast_model_logits_equal_the_reference(variant, n, k):
 def test_bfloat16_normalisation_rounds_as_torch():
     """On bfloat16 activations the normalisation kernel computes as on float32 ones and rounds its output
     to nearest even, bit for bit what torch's conversion gives (with and without residual and ReLU)."""
-    from nmnet_ros.model_fast import _norm
+    from nmnet_ros.core.model_fast import _norm
 
     g = torch.Generator().manual_seed(0)
     x = (torch.randn(3000, 64, generator=g) * 3 + 1).bfloat16()
@@ -119,7 +119,7 @@ def test_bfloat16_normalisation_rounds_as_torch():
 
 
 def test_bfloat16_is_native_only_with_the_cpu_flags():
-    from nmnet_ros.bf16 import cpu_has_bf16
+    from nmnet_ros.core.bf16 import cpu_has_bf16
 
     x86 = "flags\t\t: fpu sse2 avx2 avx512f avx512bw avx512_vnni {}\nbugs\t\t: spectre_v1\n"
     assert cpu_has_bf16(x86.format("avx512_bf16"), "x86_64") and cpu_has_bf16(x86.format("amx_bf16 amx_tile"), "x86_64")
@@ -130,8 +130,8 @@ def test_bfloat16_is_native_only_with_the_cpu_flags():
 
 
 def test_precision_choices():
-    from nmnet_ros.bf16 import native_bf16
-    from nmnet_ros.model_fast import precision_note, resolve_precision
+    from nmnet_ros.core.bf16 import native_bf16
+    from nmnet_ros.core.model_fast import precision_note, resolve_precision
 
     assert resolve_precision("float32") is torch.float32 and resolve_precision("bfloat16") is torch.bfloat16
     assert resolve_precision("auto") is (torch.bfloat16 if native_bf16() else torch.float32)
@@ -144,7 +144,7 @@ def test_bfloat16_padding_leaves_the_logits_unchanged(monkeypatch):
     """bfloat16 pads N to a multiple of PAD (oneDNN builds a GEMM kernel for every new shape, ~9 ms per
     frame otherwise); the padding rows are never counted by the normalisations, so the logits equal
     those of the unpadded input (counting them would shift the moments by ~2 % here)."""
-    import nmnet_ros.model_fast as mf
+    import nmnet_ros.core.model_fast as mf
 
     x, k0, a0, k1, a1 = inputs(1000, seed=3)  # padded to 1024
     nb = torch.from_numpy(compatibility_neighbors(k0, a0, k1, a1))
@@ -158,7 +158,7 @@ def test_bfloat16_padding_leaves_the_logits_unchanged(monkeypatch):
 
 def test_ratio_input_is_a_fifth_input_the_fast_model_runs_too():
     """``ratio_input`` (not in the paper): the descriptor ratio joins the four coordinates."""
-    from nmnet_ros.model_fast import FastNMNet
+    from nmnet_ros.core.model_fast import FastNMNet
 
     torch.manual_seed(0)
     model = NMNet({"ratio_input": True}).eval()
@@ -182,8 +182,8 @@ def test_weights_without_a_calibrated_threshold_are_said_where_the_cut_is_used(t
     without a word. Said when the selector is built; not with the shipped weights or an explicit score_threshold."""
     import warnings
 
-    from nmnet_ros.model import weights_dir
-    from nmnet_ros.selectors import build
+    from nmnet_ros.core.model import weights_dir
+    from nmnet_ros.core.selectors import build
 
     ck = torch.load(weights_dir() / "nmnet.pt", map_location="cpu", weights_only=True)
     assert "score_threshold" in ck and load_model().calibrated

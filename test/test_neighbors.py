@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.neighbor_study import neighbor_inlier_ratios
-from nmnet_ros.neighbors import compatibility_neighbors, compatibility_neighbors_loop, mine_neighbors, spatial_neighbors
-from nmnet_ros.pairs import make_pair
+from nmnet_ros.core.neighbors import compatibility_neighbors, compatibility_neighbors_loop, mine_neighbors, spatial_neighbors
+from nmnet_ros.io.datasets import Sequence
+from nmnet_ros.io.pairs import make_pair
+from nmnet_ros.tools.neighbor_study import neighbor_inlier_ratios
 
 from .conftest import data_dir
 
@@ -52,7 +52,7 @@ def test_mining_keeps_the_callers_torch_thread_count():
 
     code = (
         "import numpy as np, torch\n"
-        "from nmnet_ros.neighbors import compatibility_neighbors\n"
+        "from nmnet_ros.core.neighbors import compatibility_neighbors\n"
         "torch.set_num_threads(1)\n"
         "r = np.random.default_rng(0); a = np.tile(np.eye(2), (50, 1, 1))\n"
         "compatibility_neighbors(r.normal(size=(50, 2)), a, r.normal(size=(50, 2)), a)\n"
@@ -64,7 +64,7 @@ def test_mining_keeps_the_callers_torch_thread_count():
 
 def test_concurrent_mining_on_numbas_workqueue_layer():
     """numba's fallback threading layer aborts the process when two threads launch kernels at once;
-    nmnet_ros.jit serialises launches there (a fresh process, forced onto that layer)."""
+    nmnet_ros.core.jit serialises launches there (a fresh process, forced onto that layer)."""
     import os
     import subprocess
     import sys
@@ -72,7 +72,7 @@ def test_concurrent_mining_on_numbas_workqueue_layer():
     code = (
         "import numpy as np, numba\n"
         "from concurrent.futures import ThreadPoolExecutor\n"
-        "from nmnet_ros.neighbors import compatibility_neighbors\n"
+        "from nmnet_ros.core.neighbors import compatibility_neighbors\n"
         "r = np.random.default_rng(0); a = np.tile(np.eye(2), (1500, 1, 1))\n"
         "sets = [(r.normal(size=(1500, 2)), a, r.normal(size=(1500, 2)), a) for _ in range(8)]\n"
         "with ThreadPoolExecutor(4) as pool:\n"

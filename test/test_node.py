@@ -10,10 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.geometry import rotation_error_deg
-from nmnet_ros.imgconv import matches_of_cloud
-from nmnet_ros.params import read_params_file
+from nmnet_ros.core.geometry import rotation_error_deg
+from nmnet_ros.interface.imgconv import matches_of_cloud
+from nmnet_ros.interface.params import read_params_file
+from nmnet_ros.io.datasets import Sequence
 
 from .conftest import ROOT, data_dir, planar_views
 from .rosharness import NodeProcess, camera_info_msg, compressed_msg, image_msg, launch_node_args, ros_env, spin_until, unique_domain
@@ -22,7 +22,7 @@ rclpy = pytest.importorskip("rclpy")
 
 
 def quat_to_rot(q):
-    from nmnet_ros.geometry import quat_to_rot as q2r
+    from nmnet_ros.core.geometry import quat_to_rot as q2r
 
     return q2r(q)
 
@@ -129,7 +129,7 @@ def node_and_peer(ros: dict, tmp_path, node_args: list[str], stop: int = signal.
 
 def no_estimate(msg) -> bool:
     """A relative pose that says "no estimate": the identity, variance NO_ESTIMATE_VAR on every axis."""
-    from nmnet_ros.posemsg import NO_ESTIMATE_VAR
+    from nmnet_ros.interface.posemsg import NO_ESTIMATE_VAR
 
     o, p = msg.pose.pose.orientation, msg.pose.pose.position
     return (o.x, o.y, o.z, o.w, p.x, p.y, p.z) == (0, 0, 0, 1, 0, 0, 0) and \
@@ -360,7 +360,7 @@ def test_the_diagnostics_level_is_warn_while_warnings_are_recent_and_ok_again_af
     robot that waits or turns in place) is counted but is not a fault."""
     from diagnostic_msgs.msg import DiagnosticStatus
 
-    from nmnet_ros.node import health
+    from nmnet_ros.ros.node import health
 
     assert health({}, 100.0, "ok") == (DiagnosticStatus.OK, "ok")
     assert health({"bad_image": 91.0, "no_camera_info": 2.0}, 100.0, "ok") == (
@@ -547,7 +547,7 @@ def test_a_compressed_topic_remapped_as_the_raw_input_is_explained(ros, tmp_path
 
 
 def test_the_advice_for_another_message_type_fits_each_direction():
-    from nmnet_ros.dds import mistyped_advice
+    from nmnet_ros.interface.dds import mistyped_advice
 
     assert mistyped_advice("/cam/image_raw", ["sensor_msgs/msg/Image"], True).endswith(
         "subscribes sensor_msgs/msg/CompressedImage, so no frame can arrive: set -p use_compressed:=false -r image:=/cam/image_raw")
@@ -587,7 +587,7 @@ def test_rectified_frames_take_p_and_a_rect_topic_with_distortion_is_pointed_out
 
 
 def test_the_subscription_follows_the_publishers_and_the_advice_fits_the_case():
-    from nmnet_ros.dds import LARGE_FRAMES_PROFILE, follow_reliability, silence_advice, where_are_the_images
+    from nmnet_ros.interface.dds import LARGE_FRAMES_PROFILE, follow_reliability, silence_advice, where_are_the_images
 
     assert [follow_reliability(o) for o in ([], [True], [True, True], [True, False], [False])] == [False, True, True, False,
                                                                                                    False]
@@ -833,7 +833,7 @@ def test_weights_without_a_calibrated_cut_are_said_in_the_nodes_log(ros, tmp_pat
     not a Python UserWarning with its source line."""
     import torch
 
-    from nmnet_ros.model import weights_dir
+    from nmnet_ros.core.model import weights_dir
 
     ck = torch.load(weights_dir() / "nmnet.pt", map_location="cpu", weights_only=True)
     del ck["score_threshold"]
@@ -939,7 +939,7 @@ def test_node_module_caps_malloc_arenas_unless_the_user_set_it():
     import subprocess
     import sys
 
-    code = "import nmnet_ros.node, nmnet_ros.one_arena as a; print(a.ENABLED)"
+    code = "import nmnet_ros.ros.node, nmnet_ros.ros.one_arena as a; print(a.ENABLED)"
     env = {k: v for k, v in os.environ.items() if k != "MALLOC_ARENA_MAX"}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, check=True)
     assert out.stdout.strip() == "True"
@@ -953,7 +953,7 @@ def test_params_file_and_readme_list_every_parameter_with_its_default():
     parameter table has a row for each, with that default."""
     import yaml
 
-    from nmnet_ros.node import PARAMS
+    from nmnet_ros.ros.node import PARAMS
 
     params = yaml.safe_load((ROOT / "config" / "nmnet.yaml").read_text())["/**"]["ros__parameters"]
     assert params == {name: default for name, (default, _, _) in PARAMS.items()}
@@ -994,7 +994,7 @@ def test_the_package_installs_launch_config_and_ament_index(tmp_path):
     assert {"share/nmnet_ros/launch/nmnet.launch.xml", "share/nmnet_ros/config/nmnet.yaml", "share/nmnet_ros/package.xml",
             "share/ament_index/resource_index/packages/nmnet_ros"} <= share
     entry = next(zipfile.ZipFile(wheel).read(n).decode() for n in names if n.endswith("entry_points.txt"))
-    assert "nmnet_node = nmnet_ros.cli:node_main" in entry and "nmnet = nmnet_ros.cli:main" in entry
+    assert "nmnet_node = nmnet_ros.tools.cli:node_main" in entry and "nmnet = nmnet_ros.tools.cli:main" in entry
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), [n for n in names if "dist-info" in n]
 
 

@@ -6,9 +6,9 @@ import argparse
 
 import pytest
 
-from nmnet_ros.params import PARAMS, ParamsFileError, check_value, frontend_config, read_params_file
-from nmnet_ros.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
-from nmnet_ros.replay import add_arguments, live_node_args
+from nmnet_ros.core.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
+from nmnet_ros.interface.params import PARAMS, ParamsFileError, check_value, frontend_config, read_params_file
+from nmnet_ros.tools.replay import add_arguments, live_node_args
 
 from .conftest import ROOT
 
@@ -79,7 +79,7 @@ def test_a_live_replay_hands_the_node_the_file_then_the_options_given():
 
 def test_which_parameters_file_sections_reach_a_node_as_rcl_matches_them():
     """Checked against rcl on 2026-12-04 (rclpy 9.1.2, a node /front/nmnet_node and /nmnet_node): the same verdicts."""
-    from nmnet_ros.params import file_sections, not_parameters, section_applies
+    from nmnet_ros.interface.params import file_sections, not_parameters, section_applies
 
     for name, front, root in (("/**", True, True), ("**", True, True), ("nmnet_node", False, True), ("/nmnet_node", False, True),
                               ("front/nmnet_node", True, False), ("/front/*", True, False), ("/**/nmnet_node", True, True),

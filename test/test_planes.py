@@ -4,11 +4,11 @@ picks the one nearer the previous motion and the published covariance reaches th
 import numpy as np
 import pytest
 
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.geometry import direction_angle_deg, relative_pose, rotation_error_deg
-from nmnet_ros.pipeline import Frontend
-from nmnet_ros.planes import one_of_a_plane, plane_candidates, plane_poses
-from nmnet_ros.posemsg import relative_pose_of_current
+from nmnet_ros.core.geometry import direction_angle_deg, relative_pose, rotation_error_deg
+from nmnet_ros.core.pipeline import Frontend
+from nmnet_ros.core.planes import one_of_a_plane, plane_candidates, plane_poses
+from nmnet_ros.interface.posemsg import relative_pose_of_current
+from nmnet_ros.io.datasets import Sequence
 
 from .conftest import data_dir, planar_views
 

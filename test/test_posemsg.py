@@ -4,9 +4,9 @@ import cv2
 import numpy as np
 import pytest
 
-from nmnet_ros.geometry import PoseEstimate
-from nmnet_ros.pipeline import RESTARTS
-from nmnet_ros.posemsg import NO_ESTIMATE_VAR, estimate_of_message, relative_pose_of_current
+from nmnet_ros.core.geometry import PoseEstimate
+from nmnet_ros.core.pipeline import RESTARTS
+from nmnet_ros.interface.posemsg import NO_ESTIMATE_VAR, estimate_of_message, relative_pose_of_current
 
 
 def _pose(deg: float, t: tuple[float, float, float]) -> PoseEstimate:
@@ -52,7 +52,7 @@ def test_ok_without_a_pose_is_no_estimate():
 
 def test_a_recorded_no_estimate_scores_as_a_failure_and_an_estimate_by_its_error():
     """The live replay scores messages read back with the offline replay's frame_error."""
-    from nmnet_ros.scoring import frame_error
+    from nmnet_ros.tools.scoring import frame_error
 
     T0, T1 = np.eye(4), np.eye(4)
     T1[:3, 3] = [0.0, 0.0, 1.0]  # moved 1 m forward: x_cur = x_prev - (0, 0, 1)

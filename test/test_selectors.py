@@ -4,13 +4,13 @@ combined NM-Net + ratio + MAGSAC++ default keeps only what both filters keep and
 import numpy as np
 import pytest
 
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.geometry import Camera, pose_error_deg, refine_pose, rotation_error_deg
-from nmnet_ros.metrics import prf
-from nmnet_ros.model import load_model
-from nmnet_ros.model_fast import FastNMNet
-from nmnet_ros.pairs import make_pair, to_correspondences
-from nmnet_ros.selectors import DEFAULT_CONFIG, METHODS, build, classic_mask, nmnet_scores, robust_fit
+from nmnet_ros.core.geometry import Camera, pose_error_deg, refine_pose, rotation_error_deg
+from nmnet_ros.core.metrics import prf
+from nmnet_ros.core.model import load_model
+from nmnet_ros.core.model_fast import FastNMNet
+from nmnet_ros.core.selectors import DEFAULT_CONFIG, METHODS, build, classic_mask, nmnet_scores, robust_fit
+from nmnet_ros.io.datasets import Sequence
+from nmnet_ros.io.pairs import make_pair, to_correspondences
 
 from .conftest import data_dir, robust_cost
 
@@ -57,7 +57,7 @@ def test_bfloat16_network_selects_what_float32_selects(pairs):
     (measured: 0.1 % flip), the logits move by a few hundredths (median), and the logits are float32."""
     import torch
 
-    from nmnet_ros.selectors import nmnet_logits
+    from nmnet_ros.core.selectors import nmnet_logits
 
     model = load_model()
     exact, fast = FastNMNet(model), FastNMNet(model, torch.bfloat16)
@@ -89,7 +89,7 @@ def test_pixel_threshold_reaches_the_robust_estimator(pairs):
 
 def test_frontend_passes_its_pixel_threshold_to_the_selector():
     """The node's pose_threshold_px goes through Frontend's threshold_px: same frames, looser -> more inliers."""
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     selected = []
@@ -105,7 +105,7 @@ def test_frontend_passes_its_pixel_threshold_to_the_selector():
 
 def test_frontend_passes_its_refine_iterations_to_the_selector():
     """The node's pose_refine_iterations goes through Frontend: same frames, same selection, a polished pose."""
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     results = []
@@ -124,7 +124,7 @@ def test_prepared_matches_are_used_only_against_the_features_they_were_made_with
     """The node's two stages: prepare() matches each frame to the one prepared before it; the second
     stage uses those matches when its previous frame is that very frame and the matching settings
     are unchanged, and matches again otherwise."""
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     img = [seq.image(i) for i in (10, 11, 12, 13)]
@@ -162,7 +162,7 @@ def test_a_camera_that_turns_without_moving_gets_its_rotation(deg):
     0.5 deg (the frame said "no estimate") and at 5 deg returned a translation direction drawn from noise. Now the
     flow the rotation explains is taken out first; no parallax is left, so the rotation alone is the estimate."""
 
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     img = seq.image(30)
@@ -181,7 +181,7 @@ def test_the_parallax_bound_is_its_own_parameter():
     pure 5-degree rotation goes to the essential matrix (its flow is far above static_flow_px); raised above a moving
     KITTI pair's parallax (a step of ~1 m; kitti-07's least parallax is 1.66 px) that pair is taken for a turn."""
 
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     img = seq.image(30)
@@ -200,7 +200,7 @@ def test_a_camera_standing_still_gets_its_small_rotation_not_the_identity():
     """EuRoC V1_01's first seconds: the MAV stands on the ground (baseline under a millimetre) and its camera sways by
     hundredths of a degree. Every frame is without a baseline; the rotation fitted alone is nearer the ground truth
     than the identity published before (measured: mean 0.0075 against 0.0235 deg over these 39 pairs)."""
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("euroc-v101-cam0"))
     fe = Frontend(seq.camera, {"max_keypoints": 1000})
@@ -220,7 +220,7 @@ def test_matching_runs_where_it_shortens_the_slower_stage():
     """match_stage auto: per-stage costs measured here (1 thread per stage, native KITTI frames):
     2000 keypoints detect 73 ms, match 28, NM-Net + pose 92 -> match beside detection (101 vs 120);
     1000 keypoints 77 / 9 / 64 -> beside NM-Net (77 vs 86). Until the costs are known, the second stage."""
-    from nmnet_ros.pipeline import Frontend, match_first
+    from nmnet_ros.core.pipeline import Frontend, match_first
 
     assert match_first(73, 28, 92) and not match_first(77, 9, 64)
     seq = Sequence.load(data_dir("kitti-07"))
@@ -238,8 +238,8 @@ def test_matching_runs_where_it_shortens_the_slower_stage():
 def test_frontend_reconfigures_while_running(tmp_path):
     """Frontend.reconfigure (the node's `ros2 param set`): a new threshold acts on the next pair as a fresh
     front end's would; a failing change leaves everything as it was; a new detector restarts the chain."""
-    from nmnet_ros.model import WeightsError
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.model import WeightsError
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     img = [seq.image(i) for i in (10, 11, 12)]
@@ -270,7 +270,7 @@ def test_frontend_reconfigures_while_running(tmp_path):
 def test_a_detector_swap_between_the_two_stages_starts_a_new_chain():
     """The node's two stages run beside `ros2 param set`: a frame detected before a new detector and one
     detected after it are never related (their features are of two detectors), in whichever order it lands."""
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     img = [seq.image(i) for i in (30, 31, 32, 33)]
@@ -290,7 +290,7 @@ def test_a_detector_swap_between_the_two_stages_starts_a_new_chain():
 def test_a_frame_is_related_with_the_camera_it_was_prepared_with():
     """In the node, stage 1 sets the next frame's camera (fitted to its size) while stage 2 relates the frame
     before it: that frame keeps the camera it was prepared with."""
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     R_gt, t_gt = seq.relative_pose(40, 41)
@@ -306,7 +306,7 @@ def test_a_frame_is_related_with_the_camera_it_was_prepared_with():
 
 def test_a_frame_from_before_the_previous_one_starts_a_new_chain():
     """A bag played in a loop (or a clock reset): its first frame again is not related to the loop's last one."""
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     img = [seq.image(i) for i in (20, 21, 22)]
@@ -318,7 +318,7 @@ def test_a_frame_from_before_the_previous_one_starts_a_new_chain():
 
 
 def test_stamp_order_is_the_rule_the_node_and_the_replay_share():
-    from nmnet_ros.pipeline import stamp_order
+    from nmnet_ros.core.pipeline import stamp_order
 
     assert [stamp_order(None, 5.0, 1.0), stamp_order(5.0, 5.1, 1.0)] == [None, None]
     assert stamp_order(5.0, 5.0, 1.0) == "duplicate_stamp"
@@ -330,7 +330,7 @@ def test_stamp_order_is_the_rule_the_node_and_the_replay_share():
 def test_a_bad_weights_file_is_refused_by_every_method(tmp_path):
     """build() checks every weights file it is given, also one the method does not use: the caller
     learns now, not when it later switches to a method that loads it."""
-    from nmnet_ros.model import WeightsError
+    from nmnet_ros.core.model import WeightsError
 
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a checkpoint")
@@ -341,7 +341,7 @@ def test_a_bad_weights_file_is_refused_by_every_method(tmp_path):
 
 
 def test_score_threshold_trades_recall_for_precision(pairs):
-    from nmnet_ros.evaluate import evaluate
+    from nmnet_ros.tools.evaluate import evaluate
 
     low, high = (evaluate(pairs, ["nmnet"], config={"score_threshold": t})["metrics"]["nmnet"] for t in (0.3, 0.9))
     print(f"threshold 0.3: P {low['precision']:.1f} R {low['recall']:.1f}; 0.9: P {high['precision']:.1f} R {high['recall']:.1f}")
@@ -349,7 +349,7 @@ def test_score_threshold_trades_recall_for_precision(pairs):
 
 
 def test_seeds_rerun_only_the_robust_methods_and_average_them(pairs):
-    from nmnet_ros.evaluate import evaluate
+    from nmnet_ros.tools.evaluate import evaluate
 
     one = evaluate(pairs, ["ratio", "ratio+magsac"])
     three = evaluate(pairs, ["ratio", "ratio+magsac"], seeds=3)
@@ -376,7 +376,7 @@ def test_a_seed_reruns_only_the_robust_stage(pairs):
 
 
 def test_seeds_below_one_are_refused(pairs):
-    from nmnet_ros.evaluate import evaluate
+    from nmnet_ros.tools.evaluate import evaluate
 
     with pytest.raises(ValueError, match="--seeds must be >= 1"):
         evaluate(pairs[:1], ["ratio+magsac"], seeds=0)
@@ -390,12 +390,12 @@ def test_a_tools_warning_is_one_line_for_the_user(tmp_path, cache):
 
     import torch
 
-    from nmnet_ros.model import weights_dir
+    from nmnet_ros.core.model import weights_dir
 
     ck = torch.load(weights_dir() / "nmnet.pt", map_location="cpu", weights_only=True)
     del ck["score_threshold"]
     torch.save(ck, tmp_path / "last.pt")
-    run = subprocess.run([sys.executable, "-m", "nmnet_ros.cli", "eval", f"{data_dir('kitti-07')}:120-121", "--gaps", "1",
+    run = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "eval", f"{data_dir('kitti-07')}:120-121", "--gaps", "1",
                           "--methods", "nmnet", "--weights", str(tmp_path / "last.pt"), "--cache", str(cache.root),
                           "--json", str(tmp_path / "e.json")], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
@@ -405,8 +405,8 @@ def test_a_tools_warning_is_one_line_for_the_user(tmp_path, cache):
 
 def test_eval_refuses_weights_of_the_other_variant(capsys):
     """NM-Net-sp's checkpoint as --weights (or the reverse) was scored under the other variant's name, silently."""
-    from nmnet_ros.cli import main
-    from nmnet_ros.model import weights_dir
+    from nmnet_ros.core.model import weights_dir
+    from nmnet_ros.tools.cli import main
 
     sp, nm = weights_dir() / "nmnet-sp.pt", weights_dir() / "nmnet.pt"
     for argv, said in ((["--weights", str(sp)], f"--weights {sp}: trained with spatial neighbours, the other variant's "
@@ -422,7 +422,7 @@ def test_eval_warns_of_folder_arguments_that_share_frames_or_a_reference_it_did_
     not among --methods left the differences out without a word."""
     import json
 
-    from nmnet_ros.cli import main
+    from nmnet_ros.tools.cli import main
 
     seq = data_dir("kitti-07")
     argv = ["eval", f"{seq}:120-122", f"{seq}:121-123", "--gaps", "1", "--methods", "ratio", "--json",
@@ -446,7 +446,7 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
 
     seq = data_dir("kitti-07")
     out = tmp_path / "eval.json"
-    cmd = [sys.executable, "-m", "nmnet_ros.cli", "eval", f"{seq}:120-124", "--gaps", "1,2", "--methods", "ratio,nmnet,oracle",
+    cmd = [sys.executable, "-m", "nmnet_ros.tools.cli", "eval", f"{seq}:120-124", "--gaps", "1,2", "--methods", "ratio,nmnet,oracle",
            "--json", str(out), "--plot", str(tmp_path / "curves.png"), "--cache", str(cache.root)]
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
@@ -469,7 +469,7 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     assert ref.returncode == 0 and "AUC@5 minus oracle's, same 7 pairs" in ref.stdout
     assert "  nmnet: " in ref.stdout and "  ratio: " in ref.stdout and "  oracle: " not in ref.stdout
     assert "AUC@5 per sequence" not in ref.stdout  # one sequence: no per-sequence table
-    two = [sys.executable, "-m", "nmnet_ros.cli", "eval", f"{seq}:120-122", f"{seq}:123-125", "--gaps", "1",
+    two = [sys.executable, "-m", "nmnet_ros.tools.cli", "eval", f"{seq}:120-122", f"{seq}:123-125", "--gaps", "1",
            "--methods", "ratio,oracle", "--reference", "oracle", "--plot", str(tmp_path / "two.png"), "--cache", str(cache.root)]
     run = subprocess.run(two, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
@@ -496,7 +496,7 @@ def test_eval_outputs_are_checked_before_the_evaluation_and_written_where_asked(
     import subprocess
     import sys
 
-    cmd = [sys.executable, "-m", "nmnet_ros.cli", "eval", f"{data_dir('kitti-07')}:120-122", "--gaps", "1", "--methods",
+    cmd = [sys.executable, "-m", "nmnet_ros.tools.cli", "eval", f"{data_dir('kitti-07')}:120-122", "--gaps", "1", "--methods",
            "ratio,oracle", "--cache", str(cache.root)]
     bad = subprocess.run(cmd + ["--plot", str(tmp_path)], capture_output=True, text=True)  # a folder
     assert bad.returncode == 2 and f"--plot {tmp_path} is a folder: give a file name" in bad.stderr, bad.stderr
@@ -567,8 +567,8 @@ def test_frames_wider_than_resize_width_are_detected_downscaled_and_reported_in_
     A frame no wider than resize_width is untouched; a new resize_width restarts the chain (another frame size)."""
     import cv2
 
-    from nmnet_ros.geometry import essential_from_pose, sym_epipolar_sq
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.geometry import essential_from_pose, sym_epipolar_sq
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     (w, h), cfg = (seq.camera.width, seq.camera.height), {"selector": "ratio+magsac"}
@@ -608,7 +608,7 @@ def test_a_zoom_camera_gets_each_frame_through_its_own_camera_info():
     went through the newest K: 1.90 / 2.71 deg (at 0.8x and 1.5x 2.7-3.0 deg of rotation)."""
     import cv2
 
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     K, s = seq.camera.K, 1.25

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nmnet_ros.geometry import quat_to_rot
-from nmnet_ros.posemsg import rot_to_quat
-from nmnet_ros.tftree import TfError, TfTree
-from nmnet_ros.trajectory import between
+from nmnet_ros.core.geometry import quat_to_rot
+from nmnet_ros.interface.posemsg import rot_to_quat
+from nmnet_ros.io.tftree import TfError, TfTree
+from nmnet_ros.io.trajectory import between
 
 RNG = np.random.default_rng(7)
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.imgconv import matches_of_cloud, matches_to_cloud_fields
-from nmnet_ros.tracks import NO_TRACK, continue_tracks, track_summary
+from nmnet_ros.core.tracks import NO_TRACK, continue_tracks, track_summary
+from nmnet_ros.interface.imgconv import matches_of_cloud, matches_to_cloud_fields
+from nmnet_ros.io.datasets import Sequence
 
 from .conftest import data_dir
 
@@ -82,8 +82,8 @@ def test_tracks_follow_points_through_kitti_frames_and_restart_with_new_ids():
     previous keypoint was the current keypoint of a selected match the pair before carries that match's id (the
     keypoints are the same features, so their pixels are equal); most selected matches continue a track; tracks
     that continue are consistent with the ground-truth motion. After a reset no id comes back."""
-    from nmnet_ros.geometry import essential_from_pose, sampson_distance
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.geometry import essential_from_pose, sampson_distance
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     fe = Frontend(seq.camera, {})
@@ -124,8 +124,8 @@ def test_matches_within_px_publishes_the_pose_fits_candidates_near_the_pose_for_
     """matches_within_px 0.5: every match MAGSAC++ was given that lies within 0.5 px of the final pose is published,
     not only its inliers at pose_threshold_px (0.15 px): more matches and tracks seen in more frames, as consistent
     with the ground truth; the pose, and the count the covariance rests on (its inliers), are as with 0."""
-    from nmnet_ros.geometry import essential_from_pose, sampson_distance
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.geometry import essential_from_pose, sampson_distance
+    from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     runs = {}
@@ -163,7 +163,7 @@ def test_a_streams_tracks_are_summed_up_by_length():
 def test_a_long_streams_tracks_are_counted_as_they_come_as_a_full_count_would():
     """300 messages of tracks that go on, end and start at random: the running count (which holds only the last
     message's tracks) says what counting every id of every message says."""
-    from nmnet_ros.tracks import TrackLengths
+    from nmnet_ros.core.tracks import TrackLengths
 
     rng, messages, live, next_id = np.random.default_rng(3), [], np.zeros(0, np.int64), 0
     for _ in range(300):
@@ -191,9 +191,9 @@ def test_the_readmes_back_end_snippet_collects_the_tracks_of_a_recording(tmp_pat
     every observation stamped (the first frame's message, empty, gives the stamp the next message relates to)."""
     import re
 
-    from nmnet_ros.bags import BagReader
-    from nmnet_ros.mcap_out import McapOutput
-    from nmnet_ros.pipeline import Frontend
+    from nmnet_ros.core.pipeline import Frontend
+    from nmnet_ros.io.bags import BagReader
+    from nmnet_ros.io.mcap_out import McapOutput
 
     from .conftest import ROOT
 

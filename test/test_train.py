@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 import torch
 
-from nmnet_ros.cache import FeatureCache
-from nmnet_ros.detectors import make_detector
-from nmnet_ros.evaluate import add_arguments as eval_args
-from nmnet_ros.geometry import apply_homography, eight_point_rows, essential_from_pose, sym_epipolar_sq
-from nmnet_ros.model import DEFAULT_CONFIG as MODEL_CONFIG
-from nmnet_ros.model import load_model, weights_dir
-from nmnet_ros.neighbor_study import add_arguments as neighbors_args
-from nmnet_ros.neighbors import mine_neighbors
-from nmnet_ros.pairs import load_pairs, shared_frames
-from nmnet_ros.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
-from nmnet_ros.train import (
+from nmnet_ros.core.detectors import make_detector
+from nmnet_ros.core.geometry import apply_homography, eight_point_rows, essential_from_pose, sym_epipolar_sq
+from nmnet_ros.core.model import DEFAULT_CONFIG as MODEL_CONFIG
+from nmnet_ros.core.model import load_model, weights_dir
+from nmnet_ros.core.neighbors import mine_neighbors
+from nmnet_ros.core.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
+from nmnet_ros.io.cache import FeatureCache
+from nmnet_ros.io.pairs import load_pairs, shared_frames
+from nmnet_ros.tools.evaluate import add_arguments as eval_args
+from nmnet_ros.tools.neighbor_study import add_arguments as neighbors_args
+from nmnet_ros.tools.train import (
     DEFAULT_CONFIG,
     MIN_THINNED_RATIO,
     balanced_bce,
@@ -36,7 +36,7 @@ from nmnet_ros.train import (
     train,
     turn_camera,
 )
-from nmnet_ros.train import add_arguments as train_args
+from nmnet_ros.tools.train import add_arguments as train_args
 
 from .conftest import data_dir
 
@@ -203,7 +203,7 @@ def test_a_run_stopped_by_sigterm_is_calibrated_as_one_stopped_by_ctrl_c(tmp_pat
     seq = str(data_dir("strecha-fountain-p11"))
     log = tmp_path / "log"
     with open(log, "w") as fh:
-        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.cli", "train", "--train", f"{seq}:0-1", "--val", f"{seq}:2-3",
+        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", "train", "--train", f"{seq}:0-1", "--val", f"{seq}:2-3",
                                  "--out", str(tmp_path / "run"), "--epochs", "500", "--steps-per-epoch", "1", "--batch", "2",
                                  "--num-corr", "128", "--gaps", "1", "--max-val-pairs", "1", "--cache", str(tmp_path / "c")],
                                 cwd=ROOT, stdout=fh, stderr=subprocess.STDOUT, text=True)
@@ -541,9 +541,9 @@ def test_no_validation_pairs_is_a_clear_error_before_training(tmp_path):
 
 def test_ratio_input_fine_tune_starts_as_the_checkpoint_and_is_kept(tmp_path):
     """--ratio-input from weights trained without it: a zero column, so the same logits at the start."""
-    from nmnet_ros.pairs import to_correspondences
-    from nmnet_ros.selectors import build
-    from nmnet_ros.train import _init_model
+    from nmnet_ros.core.selectors import build
+    from nmnet_ros.io.pairs import to_correspondences
+    from nmnet_ros.tools.train import _init_model
 
     pair = _fountain_pair(tmp_path)
     shipped = load_model()

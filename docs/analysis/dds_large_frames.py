@@ -15,7 +15,7 @@ import subprocess
 import sys
 import time
 
-from nmnet_ros.dds import LARGE_FRAMES_PROFILE
+from nmnet_ros.interface.dds import LARGE_FRAMES_PROFILE
 
 FRAMES, GAP_S = 20, 0.2
 # (size in bytes, publisher reliable, subscriber reliable, publisher uses the large-frames profile)

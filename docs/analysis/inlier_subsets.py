@@ -17,13 +17,13 @@ import dataclasses
 
 import numpy as np
 
-from nmnet_ros.cache import FeatureCache
-from nmnet_ros.detectors import make_detector
-from nmnet_ros.geometry import pose_auc, pose_error_deg, sampson_px
-from nmnet_ros.model import load_model
-from nmnet_ros.model_fast import FastNMNet
-from nmnet_ros.pairs import load_pairs, to_correspondences
-from nmnet_ros.selectors import DEFAULT_CONFIG, build, classic_mask, nmnet_scores
+from nmnet_ros.core.detectors import make_detector
+from nmnet_ros.core.geometry import pose_auc, pose_error_deg, sampson_px
+from nmnet_ros.core.model import load_model
+from nmnet_ros.core.model_fast import FastNMNet
+from nmnet_ros.core.selectors import DEFAULT_CONFIG, build, classic_mask, nmnet_scores
+from nmnet_ros.io.cache import FeatureCache
+from nmnet_ros.io.pairs import load_pairs, to_correspondences
 
 
 def main() -> None:

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.fast_hessaff import FastHessianAffine
-from nmnet_ros.matching import match_descriptors
+from nmnet_ros.core.fast_hessaff import FastHessianAffine
+from nmnet_ros.core.matching import match_descriptors
+from nmnet_ros.io.datasets import Sequence
 
 SPLIT = (("kitti-07", range(120, 160)), ("strecha-herz-jesus-p25", None))
 

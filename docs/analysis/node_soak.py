@@ -16,9 +16,9 @@ import subprocess
 import sys
 import time
 
-from nmnet_ros.caminfo import info_fields
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.imgconv import array_to_image_fields
+from nmnet_ros.interface.caminfo import info_fields
+from nmnet_ros.interface.imgconv import array_to_image_fields
+from nmnet_ros.io.datasets import Sequence
 
 
 def rss_mb(pid: int) -> int:

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.geometry import fit_rotation, rotation_error_deg
-from nmnet_ros.pipeline import Frontend
+from nmnet_ros.core.geometry import fit_rotation, rotation_error_deg
+from nmnet_ros.core.pipeline import Frontend
+from nmnet_ros.io.datasets import Sequence
 
 
 def main() -> None:

@@ -24,11 +24,11 @@ import argparse
 import cv2
 import numpy as np
 
-from nmnet_ros.cache import FeatureCache
-from nmnet_ros.detectors import DEFAULT_DETECTOR, make_detector
-from nmnet_ros.pairs import load_pairs, to_correspondences
-from nmnet_ros.posemsg import DIR_SIGMA, REF_MATCHES, ROT_SIGMA_RAD
-from nmnet_ros.selectors import build
+from nmnet_ros.core.detectors import DEFAULT_DETECTOR, make_detector
+from nmnet_ros.core.selectors import build
+from nmnet_ros.interface.posemsg import DIR_SIGMA, REF_MATCHES, ROT_SIGMA_RAD
+from nmnet_ros.io.cache import FeatureCache
+from nmnet_ros.io.pairs import load_pairs, to_correspondences
 
 FAILED_DEG = 10.0
 AXES = ("x", "y", "z")

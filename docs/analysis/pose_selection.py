@@ -15,11 +15,11 @@ from collections.abc import Callable
 import numpy as np
 from robust_variants import arguments, magsac, split_pairs
 
-from nmnet_ros.evaluate import paired_auc_difference, per_sequence_table
-from nmnet_ros.geometry import pose_error_deg, sampson_px
-from nmnet_ros.model import load_model
-from nmnet_ros.model_fast import FastNMNet
-from nmnet_ros.selectors import classic_mask
+from nmnet_ros.core.geometry import pose_error_deg, sampson_px
+from nmnet_ros.core.model import load_model
+from nmnet_ros.core.model_fast import FastNMNet
+from nmnet_ros.core.selectors import classic_mask
+from nmnet_ros.tools.evaluate import paired_auc_difference, per_sequence_table
 
 # name -> (Sampson distances in pixels of all matches, NM-Net's scores, the union of both inputs) -> support
 Rule = Callable[[np.ndarray, np.ndarray, np.ndarray], float]

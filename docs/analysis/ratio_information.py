@@ -18,12 +18,12 @@ import argparse
 import numpy as np
 import torch
 
-from nmnet_ros.cache import FeatureCache
-from nmnet_ros.detectors import make_detector
-from nmnet_ros.metrics import prf
-from nmnet_ros.model import NMNet, load_model
-from nmnet_ros.pairs import load_pairs
-from nmnet_ros.train import pair_input
+from nmnet_ros.core.detectors import make_detector
+from nmnet_ros.core.metrics import prf
+from nmnet_ros.core.model import NMNet, load_model
+from nmnet_ros.io.cache import FeatureCache
+from nmnet_ros.io.pairs import load_pairs
+from nmnet_ros.tools.train import pair_input
 
 
 def scored(model: NMNet, specs: list[str], cache: FeatureCache, gaps: tuple[int, ...]) -> list[tuple]:

@@ -18,14 +18,14 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from nmnet_ros.cache import FeatureCache
-from nmnet_ros.detectors import make_detector
-from nmnet_ros.evaluate import paired_auc_difference, per_sequence_table
-from nmnet_ros.geometry import PoseEstimate, pose_error_deg
-from nmnet_ros.model import load_model
-from nmnet_ros.model_fast import FastNMNet
-from nmnet_ros.pairs import PairData, load_pairs, to_correspondences
-from nmnet_ros.selectors import DEFAULT_CONFIG, Correspondences, classic_mask, nmnet_scores, robust_fit
+from nmnet_ros.core.detectors import make_detector
+from nmnet_ros.core.geometry import PoseEstimate, pose_error_deg
+from nmnet_ros.core.model import load_model
+from nmnet_ros.core.model_fast import FastNMNet
+from nmnet_ros.core.selectors import DEFAULT_CONFIG, Correspondences, classic_mask, nmnet_scores, robust_fit
+from nmnet_ros.io.cache import FeatureCache
+from nmnet_ros.io.pairs import PairData, load_pairs, to_correspondences
+from nmnet_ros.tools.evaluate import paired_auc_difference, per_sequence_table
 
 CFG = DEFAULT_CONFIG
 

@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 import torch
 
-from nmnet_ros.datasets import Sequence
-from nmnet_ros.fast_hessaff import FastHessianAffine
+from nmnet_ros.core.fast_hessaff import FastHessianAffine
+from nmnet_ros.io.datasets import Sequence
 
 STEPS = {"detect": "scale space", "adapt_shape": "affine steps", "orient": "orientation", "describe": "RootSIFT"}
 

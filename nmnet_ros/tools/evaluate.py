@@ -1,0 +1,262 @@
+"""``nmnet eval``: every selector on the same putative matches, against ground truth.
+
+Per method: precision / recall / F-measure of the selected matches (mean over pairs, the
+paper's P/R/F), pose AUC@5/10/20 and median rotation/translation errors (a failed pair counts
+as 180 degrees), and selection + pose time per pair. With ``--seeds N`` every method with a
+MAGSAC++/RANSAC stage runs N times per pair with different random samples and the metrics average
+over the runs: on hard pairs one seed's luck moves a method's AUC@5 by a few tenths, about the
+size of the differences between the best pipelines.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.bf16 import PRECISIONS
+from ..core.detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
+from ..core.geometry import pose_auc, pose_error_deg
+from ..core.metrics import prf
+from ..core.model import NEIGHBORS, load_model
+from ..core.model_fast import precision_note
+from ..core.selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
+from ..core.selectors import METHODS, NETWORK, ROBUST, build
+from ..io.cache import FeatureCache
+from ..io.datasets import FOLDERS_READ
+from ..io.outputs import output_file, save_figure, write_json
+from ..io.pairs import PairData, load_pairs, parse_seq_spec, shared_frames, spec_label, to_correspondences
+from ..io.progress import progress
+from .cli import file_path, gaps, whole
+
+
+def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
+             config: dict | None = None, seeds: int = 1) -> dict:
+    """Run every method on every pair; returns {"metrics": {method: metrics}, "errors": {method: errors}}.
+
+    Methods with a robust estimator run once per seed 0..seeds-1, the others (deterministic) once;
+    errors (max of rotation and translation, degrees) are (pairs, seeds) for every method and each
+    metric is the mean over all runs except the time, which is that of one run (seed 0).
+    """
+    if seeds < 1:
+        raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {seeds}")
+    out, errors = {}, {}
+    for name in methods:
+        select = build(name, config, weights)
+        runs = seeds if name in ROBUST else 1
+        prfs, errs, secs, t_method = [], [], [], time.perf_counter()
+        for p in progress(pairs, name, "pair"):
+            c = to_correspondences(p)
+            t0 = time.perf_counter()
+            sels = [select(c, seed=0) if name in ROBUST else select(c)]
+            secs.append(time.perf_counter() - t0)  # one full run; further seeds reuse NM-Net's pass
+            sels += [select(c, seed=s) for s in range(1, runs)]
+            prfs += [prf(sel.mask, p.labels) for sel in sels]
+            errs.append([pose_error_deg(sel.pose, p.R, p.t) for sel in sels] * (seeds // runs))  # one run stands for all
+        e = np.array(errs, np.float64)  # (pairs, seeds, rotation/translation)
+        aucs = pose_auc(e.max(2).ravel())
+        out[name] = {
+            "precision": float(np.mean([x["precision"] for x in prfs])),
+            "recall": float(np.mean([x["recall"] for x in prfs])),
+            "f1": float(np.mean([x["f1"] for x in prfs])),
+            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2],
+            "median_rot_deg": float(np.median(e[..., 0])), "median_trans_deg": float(np.median(e[..., 1])),
+            "pairs": len(pairs), "sec_per_pair": float(np.mean(secs)),
+        }
+        errors[name] = e.max(2)
+        print(f"eval: {name}: {len(pairs)} pairs x {runs} run(s) in {time.perf_counter() - t_method:.0f} s", file=sys.stderr)
+    return {"metrics": out, "errors": errors}
+
+
+def paired_auc_difference(errors: np.ndarray, reference: np.ndarray, threshold: float = 5.0,
+                          resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """AUC@threshold of ``errors`` minus that of ``reference`` (same pairs, percent) with a 95 % interval.
+
+    A paired bootstrap over the pairs: each resample draws pairs with replacement and scores both
+    methods on the same draw, so a difference decided by one or two hard pairs shows as an
+    interval that straddles zero. Errors are (pairs,) or (pairs, seeds): a pair's runs are drawn together.
+    """
+    errors, reference = np.asarray(errors, np.float64), np.asarray(reference, np.float64)
+    if errors.shape != reference.shape or errors.ndim not in (1, 2) or errors.size == 0:
+        raise ValueError(f"need the same non-empty set of pairs, got {errors.shape} and {reference.shape}")
+
+    def delta(idx: np.ndarray | slice) -> float:
+        return 100 * (pose_auc(errors[idx].ravel(), (threshold,))[0] - pose_auc(reference[idx].ravel(), (threshold,))[0])
+
+    draws = np.random.default_rng(seed).integers(len(errors), size=(resamples, len(errors)))
+    lo, hi = np.percentile([delta(d) for d in draws], [2.5, 97.5])
+    return delta(slice(None)), float(lo), float(hi)
+
+
+def difference_lines(errors: dict[str, np.ndarray], reference: str) -> list[str]:
+    """One line per method: its AUC@5 minus the reference's, with the paired-bootstrap interval."""
+    ref = np.asarray(errors[reference])
+    runs = f" x {ref.shape[1]} seeds" if ref.ndim == 2 and ref.shape[1] > 1 else ""
+    lines = [f"AUC@5 minus {reference}'s, same {len(ref)} pairs{runs} (paired bootstrap, 95 % interval):"]
+    for name, e in errors.items():
+        if name != reference:
+            d, lo, hi = paired_auc_difference(e, errors[reference])
+            lines.append(f"  {name}: {d:+.1f} [{lo:+.1f}, {hi:+.1f}]")
+    return lines
+
+
+def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None) -> str:
+    """AUC@5 of every method on each sequence (``groups[k]`` names pair k's), as a markdown table.
+
+    A mean over several sequences can hide that the methods differ on one and tie on the other;
+    with ``reference`` among the methods, the others' cells also give the paired difference to it.
+    """
+    names = list(dict.fromkeys(groups))
+    labels = np.asarray(groups)
+    n_pairs = len(next(iter(errors.values())))
+    if len(labels) != n_pairs:
+        raise ValueError(f"{len(labels)} sequence labels for {n_pairs} pairs")
+    head = " | ".join(f"{g} ({np.count_nonzero(labels == g)})" for g in names)
+    lines = [f"| AUC@5 per sequence (pairs) | {head} |", "|---" * (len(names) + 1) + "|"]
+    for name, e in errors.items():
+        cells = []
+        for g in names:
+            e_g = np.asarray(e)[labels == g]
+            cell = f"{100 * pose_auc(e_g.ravel(), (5.0,))[0]:.1f}"
+            if reference in errors and name != reference:
+                d, lo, hi = paired_auc_difference(e_g, np.asarray(errors[reference])[labels == g])
+                cell += f" ({d:+.1f} [{lo:+.1f}, {hi:+.1f}])"
+            cells.append(cell)
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def markdown_table(metrics: dict) -> str:
+    """The results as a markdown table."""
+    lines = ["| method | P | R | F | AUC@5 | AUC@10 | AUC@20 | med. rot ° | med. trans ° | ms/pair |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for name, m in metrics.items():
+        lines.append(f"| {name} | {m['precision']:.1f} | {m['recall']:.1f} | {m['f1']:.1f} | {m['auc5']:.1f} | "
+                     f"{m['auc10']:.1f} | {m['auc20']:.1f} | {m['median_rot_deg']:.2f} | {m['median_trans_deg']:.2f} | "
+                     f"{1000 * m['sec_per_pair']:.1f} |")
+    return "\n".join(lines)
+
+
+def plot_curves(errors: dict[str, np.ndarray], path: Path) -> None:
+    """Recall (fraction of pairs) vs pose error threshold, one curve per method, labelled with its
+    AUC@5; the right panel zooms into 0-5 degrees, where the robust pipelines differ."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    colors = plt.get_cmap("tab10").colors
+    labels = {name: f"{name} (AUC@5 {100 * pose_auc(e, (5.0,))[0]:.1f})" for name, e in errors.items()}
+    for ax, top in zip(axes, (20.0, 5.0), strict=True):
+        th = np.linspace(0, top, 201)
+        for i, (name, e) in enumerate(errors.items()):
+            ax.plot(th, [(e <= t).mean() for t in th], label=labels[name], color=colors[i % 10], ls="-" if i < 10 else "--")
+        ax.set_xlabel("pose error threshold (deg, max of rotation and translation)")
+        ax.set_ylabel("fraction of pairs")
+        ax.grid(alpha=0.3)
+    axes[1].set_title("0-5 degrees", fontsize=9)
+    axes[0].legend(fontsize=7)
+    save_figure(fig, path)  # at this very path, also without a .png suffix
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """CLI options of ``nmnet eval``."""
+    p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help=f"sequence folders (optional frame range): {FOLDERS_READ}")
+    p.add_argument("--methods", default="nmnet,nmnet-sp,ratio,ransac,magsac,ratio+magsac,nmnet+magsac,oracle",
+                   help=f"comma-separated, from: {', '.join(METHODS)}")
+    p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
+    p.add_argument("--stride", type=whole(1), default=1, help="use every n-th frame as a pair's first frame")
+    p.add_argument("--max-pairs", type=whole(1), default=None, help="at most this many pairs per sequence (evenly spread)")
+    p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (default: shipped)")
+    p.add_argument("--weights-sp", type=Path, default=None, help="NM-Net-sp weights (default: shipped)")
+    p.add_argument("--json", type=file_path, default=None, help="write {method: metrics} as JSON")
+    p.add_argument("--plot", type=file_path, default=None, help="recall-vs-error plot (PNG; default: --json's path with .png, "
+                   "else eval_curves.png)")
+    p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
+    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),
+                   help="local feature frames (default: the node's)")
+    p.add_argument("--threshold-px", type=float, default=SELECTOR_DEFAULTS["threshold_px"],
+                   help="MAGSAC++/RANSAC inlier threshold in pixels for every robust method")
+    p.add_argument("--score-threshold", type=float, default=None,
+                   help="NM-Net probability cut for every nmnet method (default: the one calibrated with the weights)")
+    p.add_argument("--reference", default="ratio+magsac", choices=METHODS,
+                   help="method the others' AUC@5 is compared with (paired bootstrap); skipped when not run")
+    p.add_argument("--max-iters", type=int, default=SELECTOR_DEFAULTS["max_iters"],
+                   help="MAGSAC++/RANSAC iteration cap for every robust method")
+    p.add_argument("--seeds", type=int, default=1,
+                   help="runs of every MAGSAC++/RANSAC method per pair, each with other random samples (metrics: the mean)")
+    p.add_argument("--refine-iterations", type=int, default=SELECTOR_DEFAULTS["refine_iterations"],
+                   help="robust pose polish after every MAGSAC++/RANSAC fit (0 = the plain OpenCV estimate)")
+    p.add_argument("--precision", default=SELECTOR_DEFAULTS["precision"], choices=PRECISIONS,
+                   help="NM-Net arithmetic (default: the node's auto, bfloat16 where the CPU has it natively)")
+
+
+def main(args: argparse.Namespace) -> int:
+    """Entry point of ``nmnet eval``."""
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:  # none: an empty table and an empty plot, exit 0
+        raise ValueError(f"{f'unknown method(s) {unknown}' if unknown else '--methods names none'}; choose from "
+                         f"{', '.join(METHODS)}")
+    if args.score_threshold is not None and not 0.0 <= args.score_threshold < 1.0:
+        raise ValueError(f"--score-threshold must be in [0, 1), got {args.score_threshold}")
+    if not args.threshold_px > 0:
+        raise ValueError(f"--threshold-px must be > 0, got {args.threshold_px}")
+    if args.max_iters < 1:
+        raise ValueError(f"--max-iters must be >= 1, got {args.max_iters}")
+    if args.seeds < 1:
+        raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {args.seeds}")
+    if args.refine_iterations < 0:
+        raise ValueError(f"--refine-iterations must be >= 0 (0 = off), got {args.refine_iterations}")
+    inputs = [parse_seq_spec(s)[0] for s in args.seqs] + [args.weights, args.weights_sp]
+    output_file(args.json, "--json", "eval.json", inputs)
+    if args.plot is None:  # beside its numbers: evaluations into one folder keep each one's plot
+        args.plot = args.json.with_suffix(".png") if args.json is not None else Path("eval_curves.png")
+        if args.plot == args.json:
+            raise ValueError(f"--json {args.json}: its .png name is where the plot goes; name it {args.json.stem}.json")
+    output_file(args.plot, "--plot", "eval_curves.png", inputs)
+    if args.json is not None and args.plot.resolve() == args.json.resolve():
+        raise ValueError(f"--plot {args.plot} is also --json: give the plot its own file")  # it was written over the numbers
+    weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
+    for variant, path in weights.items():  # the other variant's network would be scored under this one's name
+        if (kind := load_model(path).config["neighbors"]) != NEIGHBORS[variant]:
+            flag, other = ("--weights", "--weights-sp") if variant == "nmnet" else ("--weights-sp", "--weights")
+            raise ValueError(f"{flag} {path}: trained with {kind} neighbours, the other variant's network; "
+                             f"give it as {other}")
+    cache = FeatureCache(make_detector(args.detector), args.cache)
+    for i, spec in enumerate(args.seqs):  # a folder given twice, or ranges that meet: its pairs would weigh double
+        if shared := shared_frames([spec], args.seqs[i + 1:], at_least=2):  # one frame shared: no pair in both
+            print(f"warning: {spec} and a later folder argument share frames ({'; '.join(shared)}): the pairs within "
+                  "them are evaluated twice and count twice in the means", file=sys.stderr)
+    labels = [spec_label(spec) for spec in args.seqs]
+    if len(set(labels)) < len(labels):  # two folders of the same name (or one given twice): name them in full
+        labels = list(args.seqs)
+    pairs, groups = [], []
+    for spec, label in zip(args.seqs, labels, strict=True):
+        chosen = load_pairs([spec], args.gaps, cache, stride=args.stride, max_pairs=args.max_pairs)
+        pairs += chosen
+        groups += [label] * len(chosen)
+    res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px,
+                                             "refine_iterations": args.refine_iterations, "max_iters": args.max_iters,
+                                             "precision": args.precision},
+                   args.seeds)
+    runs = f"; MAGSAC++/RANSAC methods: mean of {args.seeds} seeds" if args.seeds > 1 else ""
+    net = f"; NM-Net in {precision_note(args.precision)}" if set(methods) & set(NETWORK) else ""
+    print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%{runs}{net}\n")
+    print(markdown_table(res["metrics"]))
+    if args.reference in res["errors"] and len(res["errors"]) > 1:
+        print("\n" + "\n".join(difference_lines(res["errors"], args.reference)))
+    elif len(res["errors"]) > 1:  # the differences were left out without a word
+        print(f"\n(no AUC@5 differences: --reference {args.reference} is not among --methods; add it, or choose one "
+              "that is)")
+    if len(set(groups)) > 1:
+        print("\n" + per_sequence_table(res["errors"], groups, args.reference))
+    if args.json:  # before the plot: the numbers are what a script reads
+        write_json(args.json, {"methods": res["metrics"]})
+    plot_curves(res["errors"], args.plot)
+    print(f"\nplot: {args.plot}")
+    return 0

@@ -1,0 +1,310 @@
+"""``nmnet replay BAG --live``: play a ROS 2 bag onto topics, the node in its own process, record its outputs.
+
+The bag's image and camera_info messages are published at recorded timing (x ``rate``) after the
+node has subscribed; the node's ``~/matches`` and ``~/relative_pose`` are recorded to the output
+.mcap and then scored against the bag's ground truth like the offline mode.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.geometry import Camera
+from ..core.tracks import TrackLengths
+from ..interface.caminfo import info_fields
+from ..interface.dds import LARGE_FRAMES_PROFILE
+from ..interface.imgconv import matches_of_cloud
+from ..interface.params import NODE_NAME
+from ..interface.posemsg import estimate_of_message
+from ..io.bags import BagError, BagReader, choose_topics, typestore, window_side
+from ..io.mcap_out import McapOutput
+from ..io.trajectory import Trajectory
+from .scoring import PairScores, truth_missed
+
+# the ROS packages the live mode runs on: the player's (this module) and the node's (node.py, its own process);
+# test_core_no_ros checks that both modules import no other
+LIVE_ROS_PACKAGES = ("rclpy", "diagnostic_msgs", "geometry_msgs", "rcl_interfaces", "sensor_msgs", "std_srvs")
+
+
+def require_ros() -> None:
+    """Import what the live mode runs on (player and node); a missing package raises ImportError naming it.
+
+    Called before anything is written, so a machine without ROS leaves no empty output behind, and a missing
+    message package is named here rather than by a node that exits before subscribing.
+    """
+    for package in LIVE_ROS_PACKAGES:
+        importlib.import_module(package)
+
+
+def _rclpy_type(msgtype: str):
+    pkg, _, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+def camera_info_msg(camera: Camera, header: Any = None) -> Any:
+    """An rclpy CameraInfo of ``camera`` with the image's header (none: an empty one)."""
+    from sensor_msgs.msg import CameraInfo
+
+    msg = CameraInfo() if header is None else CameraInfo(header=header)
+    for key, value in info_fields(camera, camera.width, camera.height).items():
+        setattr(msg, key, value.tolist() if isinstance(value, np.ndarray) else value)
+    return msg
+
+
+def live_env() -> dict[str, str]:
+    """The environment for player and node: an own domain on localhost unless the user set one."""
+    env = dict(os.environ)
+    env.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "LARGE_DATA")
+    env.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", str(LARGE_FRAMES_PROFILE))  # raw frames over 0.5 MB (see dds.py)
+    return env
+
+
+def live_topics(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None) -> dict[str, str | None]:
+    """The topics a live replay plays and scores (:func:`~nmnet_ros.io.bags.choose_topics`); BagError for a ROS 1 bag."""
+    if reader.ros1:
+        raise BagError(f"{reader.path}: live replay plays ROS 2 bags (.mcap/.db3); replay ROS 1 bags (and .mcap files "
+                       "converted from them) offline (without --live)")
+    return choose_topics(reader, image_topic, info_topic)
+
+
+def _input_topic(image_type: str) -> str:
+    """The node's (relative) input topic for frames of ``image_type``, as the player publishes them under its prefix."""
+    return "image/compressed" if image_type.endswith("CompressedImage") else "image"
+
+
+def _prefix() -> str:
+    """This replay's own topics: every topic between player and node lives under it, so two live replays that share a
+    domain (two at once on one machine with the same random domain, or a domain the user set, with a robot's
+    nmnet_node on it) never hear each other."""
+    return f"/nmnet_live_{os.getpid()}"
+
+
+# the node's outputs, remapped under the prefix; recorded under the node's own names (/nmnet_node/matches, ...)
+_OUTPUTS = (("matches", "sensor_msgs/msg/PointCloud2"), ("relative_pose", "geometry_msgs/msg/PoseWithCovarianceStamped"))
+
+
+def _start_node(image_type: str, node_args: list[str] | None) -> subprocess.Popen:
+    """``nmnet_node`` in its own process, on the player's domain, its inputs, outputs and /diagnostics remapped under
+    :func:`_prefix` (not a namespace: the parameters file's ``nmnet_node:`` section matches only the root one)."""
+    env = live_env()
+    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTDDS_BUILTIN_TRANSPORTS",
+                                           "FASTDDS_DEFAULT_PROFILES_FILE")})  # the player's own participant
+    in_topic, pre = _input_topic(image_type), _prefix()
+    remaps = [f"{in_topic}:={pre}/{in_topic}", f"camera_info:={pre}/camera_info", f"/diagnostics:={pre}/diagnostics",
+              *(f"~/{name}:={pre}/{name}" for name, _ in _OUTPUTS)]
+    args = ["--ros-args", "-r", f"__node:={NODE_NAME}", "-p", f"use_compressed:={str(in_topic != 'image').lower()}",
+            *(a for r in remaps for a in ("-r", r)), *(node_args or [])]
+    return subprocess.Popen([sys.executable, "-m", "nmnet_ros.node", *args], env=env)
+
+
+class _Player:
+    """The rclpy side of a live replay: publishes the bag's frames and calibration, records the node's outputs to
+    ``out`` and counts them (``stats``: published, results, latency_ms, the node's last diagnostics)."""
+
+    def __init__(self, image_type: str, out: McapOutput, stats: dict) -> None:
+        import rclpy
+        from rclpy.qos import QoSProfile, qos_profile_sensor_data
+
+        self.rclpy, self.out = rclpy, out
+        self.stats = stats
+        self.sent_at: dict[int, float] = {}  # image stamp -> when it was published
+        self.answered: set[int] = set()  # stamps the node published matches for
+        self.last_stamp: int | None = None  # the last frame published
+        self.node = rclpy.create_node("nmnet_player")
+        pre = _prefix()
+        self.pub_img = self.node.create_publisher(_rclpy_type(image_type), f"{pre}/{_input_topic(image_type)}",
+                                                  qos_profile_sensor_data)
+        self.pub_info = self.node.create_publisher(_rclpy_type("sensor_msgs/msg/CameraInfo"), f"{pre}/camera_info",
+                                                   qos_profile_sensor_data)
+        for suffix, mtype in _OUTPUTS:
+            topic = f"/{NODE_NAME}/{suffix}"  # the name it is recorded under, as the node publishes it on a robot
+            self.node.create_subscription(_rclpy_type(mtype), f"{pre}/{suffix}", self._recorder(topic, mtype),
+                                          QoSProfile(depth=100))
+        self.node.create_subscription(_rclpy_type("diagnostic_msgs/msg/DiagnosticArray"), f"{pre}/diagnostics",
+                                      self._on_diagnostics, QoSProfile(depth=10))
+
+    def _recorder(self, topic: str, msgtype: str) -> Callable[[Any], None]:
+        from rclpy.serialization import serialize_message
+
+        def record(msg) -> None:
+            t_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+            self.out.write_raw(topic, msgtype, serialize_message(msg), t_ns)
+            if topic.endswith("matches"):
+                self.stats["results"] += 1
+                self.answered.add(t_ns)
+                if t_ns in self.sent_at:
+                    self.stats["latency_ms"].append(1000 * (time.monotonic() - self.sent_at[t_ns]))
+        return record
+
+    def _on_diagnostics(self, msg) -> None:
+        """The node's counters, as of its latest report (1 Hz)."""
+        for st in msg.status:
+            if st.hardware_id == f"/{NODE_NAME}":
+                self.stats["diagnostics"] = {kv.key: kv.value for kv in st.values}
+
+    def spin_for(self, seconds: float, until: Callable[[], bool] = lambda: False, step: float = 0.05) -> None:
+        """Serve callbacks for up to ``seconds``, or until ``until()``."""
+        t_end = time.monotonic() + seconds
+        while not until() and (wait := t_end - time.monotonic()) > 0:
+            self.rclpy.spin_once(self.node, timeout_sec=min(wait, step))
+
+    def wait_for_node(self, node_proc: subprocess.Popen, timeout: float = 60.0) -> None:
+        """Until the node subscribes to the frames (RuntimeError if it exits or does not within ``timeout``), then 1 s
+        more: the first messages after discovery can be lost."""
+        t_end = time.monotonic() + timeout
+        while self.pub_img.get_subscription_count() == 0 and time.monotonic() < t_end:
+            if node_proc.poll() is not None:
+                raise RuntimeError(f"the node exited with code {node_proc.returncode} before subscribing")
+            self.rclpy.spin_once(self.node, timeout_sec=0.1)
+        if self.pub_img.get_subscription_count() == 0:
+            raise RuntimeError(f"the node did not subscribe within {timeout:.0f} s")
+        self.spin_for(1.0)
+
+    def publish(self, msg, is_image: bool, camera: Camera | None) -> None:
+        """One of the bag's messages; with ``camera``, its camera_info goes with every frame."""
+        if not is_image:
+            self.pub_info.publish(msg)
+            return
+        if camera:
+            self.pub_info.publish(camera_info_msg(camera, msg.header))
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        self.sent_at[stamp] = time.monotonic()
+        self.pub_img.publish(msg)
+        self.stats["published"] += 1
+        self.last_stamp = stamp
+
+    def finish(self) -> None:
+        """The camera is done: wait for the last frame's result (3 s at most, under the node's 5 s no_frames delay;
+        a frame the node dropped never answers), remove the publishers, then record until results stop (8 s quiet).
+
+        No publisher left, so the node does not take the drain for a stalled camera (no_frames). Not before the last
+        frame has arrived: a writer destroyed right after publishing a large frame can take the frame with it (the
+        last of 6 raw 1.2 MB frames went missing in 3 of 26 runs); its result shows it arrived."""
+        if self.last_stamp is not None:
+            self.spin_for(3.0, lambda: self.last_stamp in self.answered)
+        self.node.destroy_publisher(self.pub_img)
+        self.node.destroy_publisher(self.pub_info)
+        count, quiet = self.stats["results"], time.monotonic()
+        while time.monotonic() - quiet < 8.0:
+            self.rclpy.spin_once(self.node, timeout_sec=0.1)
+            if self.stats["results"] != count:
+                count, quiet = self.stats["results"], time.monotonic()
+
+
+def new_stats() -> dict:
+    """A live replay's counts, as :func:`play_live` fills them: frames published, results, latencies, diagnostics."""
+    return {"published": 0, "results": 0, "latency_ms": [], "diagnostics": {}, "node_exit": None}
+
+
+def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None,
+              camera: Camera | None = None, topics: dict[str, str | None] | None = None, recorded: bool = False,
+              window: tuple[float, float] | None = None, stats: dict | None = None) -> dict:
+    """Play, record, stop the node; returns counts and latencies.
+
+    ``stats`` (from :func:`new_stats`) is filled as the bag plays, so a caller whose replay is interrupted
+    (KeyboardInterrupt: rclpy's own signal handlers are not installed, Ctrl-C raises as in any script) has the counts
+    so far.
+
+    ``camera``: published as camera_info with every image instead of the bag's camera_info; ``topics``: the
+    :func:`live_topics` to play (default: the bag's only image and camera_info topics); ``recorded``: each message
+    is restamped with the time the bag recorded it (``--stamp-source arrival``); ``window``: play only the messages
+    recorded from ``window[0]`` to ``window[1]`` seconds after the first frame.
+    """
+    import rclpy
+    from rclpy.serialization import deserialize_message
+
+    topics = topics or live_topics(reader)
+    img_t, info_t = topics["image"], None if camera else topics["camera_info"]
+    node_proc = _start_node(reader.topics[img_t], node_args)
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C raises here; rclpy would end the context
+    ts = typestore()
+
+    def ros_msg(m):  # a bag message as the rclpy message it was
+        return deserialize_message(bytes(ts.serialize_cdr(m.msg, m.msgtype)), _rclpy_type(m.msgtype))
+
+    try:
+        player = _Player(reader.topics[img_t], out, new_stats() if stats is None else stats)
+        player.wait_for_node(node_proc)
+        # calibration first, so the first frame is usable (bags often log it just after the image)
+        first_info = None if camera or not info_t else next(iter(reader.messages({info_t})), None)
+        if camera or first_info is not None:
+            player.pub_info.publish(camera_info_msg(camera) if camera else ros_msg(first_info))
+            player.spin_for(0.2)
+        first_ns, t_start = None, time.monotonic()
+        first_frame = None  # the bag's first frame's recording time, where --start/--duration count from
+        for m in reader.messages({t for t in (img_t, info_t) if t}):
+            first_frame = m.log_time_ns if first_frame is None and m.topic == img_t else first_frame
+            if window is not None and first_frame is None:  # a calibration before the first frame: published above
+                continue
+            if (side := window_side(window, first_frame, m.log_time_ns)) > 0:
+                break
+            if side < 0:
+                continue
+            first_ns = m.log_time_ns if first_ns is None else first_ns
+            player.spin_for(t_start + (m.log_time_ns - first_ns) / 1e9 / rate - time.monotonic(), step=0.02)
+            if node_proc.poll() is not None:  # it crashed or was killed: nothing more can be processed
+                break
+            msg = ros_msg(m)
+            if recorded:
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(m.log_time_ns, 10**9)
+            player.publish(msg, m.topic == img_t, camera)
+        if node_proc.poll() is None:
+            player.finish()
+        player.stats["node_exit"] = node_proc.poll()  # None: still running, as it should be
+        player.node.destroy_node()
+        return player.stats
+    finally:
+        rclpy.try_shutdown()
+        if node_proc.poll() is None:
+            node_proc.send_signal(signal.SIGINT)
+            try:
+                node_proc.wait(15)
+            except subprocess.TimeoutExpired:
+                node_proc.kill()
+
+
+def recording_summary(path: Path, truth: Trajectory | None) -> tuple[dict, dict]:
+    """A recording of the node's outputs, read once: its ``~/relative_pose`` stream scored against ``truth`` as the
+    offline replay scores its results (:class:`~nmnet_ros.tools.scoring.PairScores`; "no estimate" is a failure), and the
+    feature tracks of its ``~/matches`` (:class:`~nmnet_ros.core.tracks.TrackLengths`, counted as they are read).
+
+    Each pose message is relative to the frame of the message before it (see :mod:`nmnet_ros.interface.posemsg`); the
+    first (the node's first frame, or a recording that starts later) relates to no frame here and is not scored.
+    """
+    pose_topic, matches_topic = f"/{NODE_NAME}/relative_pose", f"/{NODE_NAME}/matches"
+    scores, tracks = PairScores(), TrackLengths()  # scored and counted as they come: a long recording is not held
+    first = last = None  # the pose messages' first and last stamps
+    T_prev, any_truth = None, False
+    for m in BagReader(path).messages({pose_topic, matches_topic}):
+        if m.topic == matches_topic:
+            tracks.add(matches_of_cloud(m.msg.point_step, m.msg.fields, m.msg.data)["track_id"])
+            continue
+        last = m.log_time_ns / 1e9
+        if truth is None:
+            continue
+        T = truth.poses_at(last)[0]
+        T = None if np.isnan(T[0, 0]) else T
+        if first is not None:  # the first message relates to no frame here
+            o, p = m.msg.pose.pose.orientation, m.msg.pose.pose.position
+            scores.add(*estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]),
+                                            m.msg.pose.covariance), T_prev, T, last)
+        first = last if first is None else first
+        T_prev, any_truth = T, any_truth or T is not None
+    if first is not None and not any_truth and (note := truth_missed(truth, [first, last])):
+        print(f"warning: {note}", file=sys.stderr)
+    return scores.summary(), tracks.summary()

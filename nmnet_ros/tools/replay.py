@@ -1,0 +1,612 @@
+"""``nmnet replay``: run the front end over a recorded bag and evaluate it.
+
+Reads .bag/.db3/.mcap (topics auto-detected), processes frame by frame, records the outputs
+to an .mcap, and prints a summary; with ground truth (in the bag, or ``--gt`` TUM file) also
+rotation/translation errors and pose AUC, and writes plots. ``--baseline`` runs the classic
+OpenCV pipeline (SIFT + mutual/ratio + MAGSAC++) over the same frames for comparison.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.bf16 import PRECISIONS
+from ..core.debug_view import draw_matches
+from ..core.detectors import DETECTORS
+from ..core.geometry import Camera, CameraError
+from ..core.model import load_model
+from ..core.pipeline import RESTARTS, FrameResult, Frontend, stamp_order, stamp_warning
+from ..core.planes import NOTE as PLANE_NOTE
+from ..core.tracks import TrackLengths
+from ..interface.caminfo import fit_camera
+from ..interface.imgconv import MAX_PIXELS
+from ..interface.params import PARAMS, SELECTORS, check_value, frontend_config, pose_sigmas, read_params_file
+from ..io.bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
+from ..io.datasets import read_camera_yaml
+from ..io.mcap_out import McapOutput
+from ..io.outputs import not_a_folder, not_an_input, not_someone_elses, output_file, output_folder, save_figure, save_image, write_json
+from ..io.trajectory import Trajectory, parse_pose, read_tum
+from .cli import bounded, file_path
+from .scoring import PairScores, truth_missed, window_missed
+
+BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
+
+
+class Notes:
+    """A pass's per-frame warnings, by the kinds the node counts in diagnostics (``warn_<kind>``): each kind is
+    said in full the first ``shown`` times, then only counted, and the counts are totalled at the end, so a bag
+    from a driver that never stamps does not print a line per frame."""
+
+    def __init__(self, log: Callable[[str], None], shown: int = 3) -> None:
+        self.log, self.shown = log, shown
+        self.counts: dict[str, int] = {}
+
+    def __call__(self, kind: str, text: str | None) -> None:
+        """Count one ``kind``; say ``text`` (None: count only) while the kind is under the limit."""
+        n = self.counts[kind] = self.counts.get(kind, 0) + 1
+        if text is not None and n <= self.shown:
+            self.log(text + (f" (further '{kind}' frames are counted, not named)" if n == self.shown else ""))
+
+    def close(self) -> None:
+        """Say each kind's total that was not said frame by frame."""
+        for kind, n in self.counts.items():
+            if n > self.shown:
+                self.log(f"{kind}: {n} frames in all")
+
+
+@dataclass
+class Step:
+    """What a pass keeps of a frame: its counts and pose, not its matches (58 KB a frame at 2000 keypoints: an
+    hour-long bag's would fill the memory; they are in the output file)."""
+
+    stamp: float
+    status: str
+    matches: int
+    selected: int
+    R: np.ndarray | None  # the pose, x_cur = R x_prev + t, where the frame has one
+    t: np.ndarray | None
+    T: np.ndarray | None  # the ground truth's camera pose at the frame's stamp, where it has one
+
+
+class Run:
+    """Everything one pass over the frames collects, a few hundred bytes a frame."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.warnings: dict[str, int] = {}  # per kind, as :class:`Notes` counted them
+        self.steps: list[Step] = []
+        self.scores = PairScores()
+        self.tracks = TrackLengths()
+        self.seconds = 0.0
+
+    def add(self, r: FrameResult, T: np.ndarray | None) -> None:
+        """One more frame's result ``r``, with the ground truth's pose ``T`` at its stamp (None: none there)."""
+        self.scores.add(r.status, r.pose, self.steps[-1].T if self.steps else None, T, r.stamp)
+        self.tracks.add(r.track_ids[r.mask])
+        R, t = (r.pose.R, r.pose.t) if r.pose else (None, None)
+        self.steps.append(Step(r.stamp, r.status, len(r.k0), r.num_selected, R, t, T))
+
+    def summary(self, frames: int, dropped: int = 0) -> dict:
+        """The summary JSON: counts, rate, median errors, pose AUCs, selections per frame, statuses."""
+        related = [s for s in self.steps if s.status not in RESTARTS]
+        statuses: dict[str, int] = {}
+        for s in self.steps:
+            statuses[s.status] = statuses.get(s.status, 0) + 1
+        return {
+            "frames": frames, "processed": len(self.steps), "dropped": dropped,
+            "fps": len(self.steps) / self.seconds if self.seconds else 0.0, **self.scores.summary(),
+            "matches_per_frame": float(np.mean([s.matches for s in related])) if related else 0.0,
+            "selected_per_frame": float(np.mean([s.selected for s in related])) if related else 0.0,
+            "status": statuses, "warnings": dict(self.warnings), "tracks": self.tracks.summary(),
+        }
+
+
+class _Gate:
+    """The node's checks before a frame enters the front end, offline: a readable image, a calibration, a stamp
+    that goes forward, a calibration that fits the frame's size. Each refusal is counted in ``notes`` by the node's
+    warning kind; ``camera``, when given, replaces the bag's camera_info."""
+
+    def __init__(self, notes: Notes, camera: Camera | None, time_jump_s: float) -> None:
+        self.notes, self.camera, self.time_jump_s = notes, camera, time_jump_s
+        self.last_stamp: float | None = None
+        self.last_note: str | None = None
+
+    def camera_for(self, f: Frame) -> Camera | None:
+        """The camera to process frame ``f`` with; None: skip it (said, or counted, in ``notes``)."""
+        if f.image is None:
+            self.notes("bad_image", f"frame at {f.stamp:.3f}: skipped, {f.error}")
+            return None
+        calibration = self.camera or f.camera
+        if calibration is None:
+            if f.camera_error:
+                self.notes("bad_camera_info", f"frame at {f.stamp:.3f}: skipped, camera_info refused: {f.camera_error}")
+            else:
+                self.notes("no_camera_info", f"frame at {f.stamp:.3f}: skipped, no camera_info yet (give the calibration "
+                                             "with --camera)")
+            return None
+        order = stamp_order(self.last_stamp, f.stamp, self.time_jump_s)
+        if order is not None:
+            self.notes(order, stamp_warning(order, self.last_stamp, f.stamp, "--stamp-source arrival") + " (as the node does)")
+            if order != "time_jump":  # a jump back restarts the chain from this frame; the others are skipped
+                return None
+        self.last_stamp = f.stamp
+        try:
+            cam, note = fit_camera(calibration, (f.image.shape[1], f.image.shape[0]))
+        except CameraError as e:  # a calibration without a size, implausible for these frames
+            self.notes("bad_camera_info", f"frame at {f.stamp:.3f}: skipped, the calibration does not fit it: {e}")
+            return None
+        if note:  # said when it changes: a scaled K holds for every frame of the stream
+            self.notes("camera_size_mismatch", f"frame at {f.stamp:.3f}: {note}" if note != self.last_note else None)
+            self.last_note = note
+        return cam
+
+
+def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: Trajectory | None = None,
+                debug_images: bool = False, progress: bool = True, topics: dict | None = None,
+                log: Callable[[str], None] = print, camera: Camera | None = None,
+                rectified: bool = False, recorded: bool = False,
+                window: tuple[float, float] | None = None,
+                max_pixels: int = MAX_PIXELS) -> tuple[Run, int, np.ndarray | None]:
+    """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the match overlay of the
+    first frame with a pose (None when none has one).
+
+    ``reader``: the bag, opened once (opening lists its topics) and read again for each pass.
+
+    ``truth``: the ground truth the frames are scored against (:func:`ground_truth`), by stamp; ``camera``: the
+    calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified; ``recorded``: the
+    frames are stamped with the time the bag recorded them (``--stamp-source arrival``); ``window``: the part of the
+    bag to replay (``--start``, ``--duration``: seconds after its first frame); ``max_pixels``: the node's
+    max_image_pixels.
+    """
+    frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded, window=window,
+                            max_pixels=max_pixels)
+    run = Run(fe.config["selector"])
+    notes = Notes(log)
+    gate = _Gate(notes, camera, fe.config["time_jump_s"])
+    n_frames, overlay = 0, None
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(desc=f"replay {reader.path.name}", unit="frame", file=sys.stderr,
+                   disable=None)  # off when stderr is no terminal (logs, CI)
+    t0 = time.perf_counter()
+    try:
+        for f in frames:
+            n_frames += 1
+            if bar is not None:
+                bar.update(1)
+            if (cam := gate.camera_for(f)) is None:
+                continue
+            fe.camera = cam
+            r = fe.process(f.image, f.stamp)
+            if r.plane_ambiguous:
+                notes("plane_ambiguous", f"frame at {f.stamp:.3f}: {PLANE_NOTE} (as the node does)")
+            run.add(r, None if truth is None else truth.at(f.stamp))
+            want_overlay = overlay is None and r.status == "ok"
+            dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if debug_images or want_overlay else None
+            if want_overlay:
+                overlay = dbg
+            if out is not None:
+                out.write_result(r, f.stamp, f.frame_id, debug=dbg if debug_images else None)  # the node's header
+    finally:
+        run.seconds = time.perf_counter() - t0
+        if bar is not None:
+            bar.close()
+        run.warnings = notes.counts
+        notes.close()
+    for w in [*reader.new_warnings(), truth_missed(truth, [s.stamp for s in run.steps]), window_missed(window, n_frames)]:
+        if w:
+            log(f"warning: {w}")
+    return run, n_frames, overlay
+
+
+def chain_trajectory(run: Run) -> tuple[np.ndarray, np.ndarray]:
+    """Estimated and ground-truth camera positions; each estimated step scaled to the GT step length."""
+    est, gt, T_est, T_gt_prev = [], [], None, None
+    for s in run.steps:
+        if (T := s.T) is None:
+            continue
+        if T_est is None:
+            T_est = T.copy()
+        else:
+            step = np.eye(4)
+            if s.R is not None and s.status in ("ok", "no_motion"):  # no_motion: the rotation, t = 0
+                scale = np.linalg.norm((np.linalg.inv(T_gt_prev) @ T)[:3, 3])
+                step[:3, :3] = s.R.T  # T_prev_cur = inv([R | t])
+                step[:3, 3] = -s.R.T @ s.t * scale
+            T_est = T_est @ step
+        T_gt_prev = T
+        est.append(T_est[:3, 3].copy())
+        gt.append(T[:3, 3].copy())
+    return np.array(est), np.array(gt)
+
+
+PLOTS = ("errors", "trajectory", "matches")  # the plots' names, each a .png
+
+
+def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path, prefix: str = "") -> list[Path]:
+    """Per-frame errors and trajectory (top view) where ground truth scored any pair, and the match overlay,
+    as ``out_dir/<prefix>errors.png``, ``trajectory.png`` and ``matches.png``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    scored = [run for run in runs if run.scores.errors]
+    if scored:  # without ground truth there is nothing to draw: no empty figures
+        fig, ax = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+        for run in scored:
+            e = np.array(run.scores.errors)
+            ax[0].plot(run.scores.stamps, e[:, 0], ".-", label=run.name)
+            ax[1].plot(run.scores.stamps, e[:, 1], ".-", label=run.name)
+        ax[0].set_ylabel("rotation error (deg)")
+        ax[1].set_ylabel("translation dir. error (deg)")
+        ax[1].set_xlabel("time (s)")
+        for a in ax:
+            a.grid(alpha=0.3)
+            a.legend(fontsize=8)
+        paths.append(save_figure(fig, out_dir / f"{prefix}errors.png"))
+
+    chains = [(run, *chain_trajectory(run)) for run in runs]
+    chains = [(run, est, gt) for run, est, gt in chains if len(gt) > 1]  # a path: two positions or more
+    if chains:
+        fig, ax = plt.subplots(figsize=(6, 5))
+        gt = chains[0][2]
+        ax.plot(gt[:, 0], gt[:, 2], "k-", lw=2, label="ground truth")
+        for run, est, _ in chains:
+            ax.plot(est[:, 0], est[:, 2], ".-", label=f"{run.name} (scale from GT)")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("z (m)")
+        ax.axis("equal")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        paths.append(save_figure(fig, out_dir / f"{prefix}trajectory.png"))
+    if overlay is not None:
+        paths.append(save_image(out_dir / f"{prefix}matches.png", overlay))
+    return paths
+
+
+def print_summary(s: dict, name: str) -> None:
+    """Human-readable summary of one run."""
+    line = f"{name}: {s['processed']}/{s['frames']} frames at {s['fps']:.2f} fps, {s['matches_per_frame']:.0f} matches and " \
+           f"{s['selected_per_frame']:.0f} selected per frame"
+    print(line)
+    print_tracks(s["tracks"])
+    print_scores(s)
+
+
+def print_tracks(t: dict) -> None:
+    """The summary's feature tracks (``~/matches``' track_id), offline and live alike."""
+    if t["count"]:
+        print(f"   tracks: {t['count']}, seen in {t['mean_frames']:.1f} frames on average, {t['share_5_frames']:.1f} % in 5 "
+              f"or more, the longest in {t['longest']}")
+
+
+def print_scores(s: dict) -> None:
+    """The summary's errors against ground truth (offline and live alike), when any pair was scored."""
+    if s["median_rot_deg"] is not None:
+        print(f"   vs ground truth ({s['scored_pairs']} pairs): median rotation error {s['median_rot_deg']:.3f} deg, translation "
+              f"{s['median_trans_deg']:.2f} deg, AUC@5/10/20 {s['auc5']:.1f} / {s['auc10']:.1f} / {s['auc20']:.1f}")
+    if s["still_pairs"]:
+        print(f"   without motion in the ground truth ({s['still_pairs']} pairs: standing, or turning on the spot): "
+              f"median rotation error {s['median_still_rot_deg']:.3f} deg")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """CLI options of ``nmnet replay``."""
+    p.add_argument("bag", type=Path, help=".bag, .db3 or .mcap file, a ROS 2 bag directory, or a folder of a ROS 1 "
+                   "recording's parts (rosbag record --split)")
+    p.add_argument("--out", type=file_path, required=True, help="output .mcap with matches and relative poses")
+    p.add_argument("--gt", type=Path, default=None, help="ground truth as a TUM file (else the bag's ground-truth topic, "
+                   "if any)")
+    p.add_argument("--gt-camera", type=gt_camera, default=None, metavar="'X Y Z QX QY QZ QW'",
+                   help="the camera's pose (optical frame: z forward, x right, y down) in the frame the ground truth "
+                   "tracks, when that is a body (a motion-capture marker set, base_link), not the camera")
+    p.add_argument("--json", type=file_path, default=None, help="write the summary as JSON")
+    p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots, named errors.png, trajectory.png, "
+                   "matches.png (default: --out's folder, named after it: OUT_errors.png, ...)")
+    p.add_argument("--image-topic", default=None)
+    p.add_argument("--info-topic", default=None)
+    p.add_argument("--gt-topic", default=None, help="the ground-truth topic (a pose, odometry or transform message; "
+                   "with --gt-tf, the TFMessage topic, default /tf)")
+    p.add_argument("--gt-tf", type=gt_frames, default=None, metavar="PARENT[:CHILD]",
+                   help="ground truth from /tf and /tf_static: CHILD's pose in PARENT (CHILD: the frame the images name, "
+                   "their optical frame), chained through the tree as tf2 does (world:camera_optical_frame over motion "
+                   "capture's world -> base_link and the robot's static mount)")
+    p.add_argument("--start", type=seconds, default=None, metavar="SEC",
+                   help="replay from this many seconds after the bag's first frame (by recording time, as ros2 bag play "
+                   "--start-offset)")
+    p.add_argument("--duration", type=seconds, default=None, metavar="SEC", help="replay this many seconds (default: to "
+                   "the end)")
+    p.add_argument("--stamp-source", default=None, choices=("header", "arrival"),
+                   help="a frame's time (the node's stamp_source): its header stamp (default) or its arrival, when the bag "
+                   "recorded it, for a driver that leaves stamps at 0 or stamps on another clock (ground truth keeps its "
+                   "own header stamps)")
+    p.add_argument("--rectified", action="store_true", help="the bag's images are rectified (image_rect): use camera_info's "
+                   "P, without distortion")
+    p.add_argument("--camera", type=Path, default=None, help="calibration as a ROS camera_info YAML (what camera_calibration "
+                   "writes), a Kalibr camchain (the camera whose rostopic is the image topic), a EuRoC sensor.yaml or an "
+                   "OpenCV YAML (its calibration's camera_matrix, or ORB-SLAM's settings), for a bag without camera_info "
+                   "or to use instead of it")
+    p.add_argument("--params-file", type=Path, default=None, metavar="YAML",
+                   help="the node's parameters file (config/nmnet.yaml's form): replay with the settings the node runs; "
+                        "the options below, when given, override it")
+    p.add_argument("--selector", default=None, help="correspondence selector (see nmnet eval; default: the node's "
+                   "pose_estimator, nmnet+ratio+magsac; with --live one the node runs, as its pose_estimator)")
+    p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (the node's weights; default: shipped)")
+    p.add_argument("--detector", default=None, choices=sorted(DETECTORS), help="local feature frames (default: hessian-affine-fast)")
+    p.add_argument("--max-keypoints", type=node_value("max_keypoints"), default=None,
+                   help="keypoints per frame (default: 2000)")
+    p.add_argument("--resize-width", type=node_value("resize_width"), default=None,
+                   help="downscale frames wider than this before detection (the node's resize_width; default 0: full "
+                   "resolution)")
+    p.add_argument("--matches-within-px", type=node_value("matches_within_px"), default=None, metavar="PX",
+                   help="record every match within this Sampson distance of the pose, not only its inliers (the "
+                   "node's matches_within_px; default 0: the inliers)")
+    p.add_argument("--precision", default=None, choices=PRECISIONS,
+                   help="NM-Net arithmetic (the node's nmnet_precision; default auto: bfloat16 where the CPU has it natively)")
+    p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
+    p.add_argument("--baseline", action="store_true", help="also run SIFT + ratio + MAGSAC++ on the same frames and print both")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--live", action="store_true", help="play the bag onto ROS 2 topics into the node (own process) and record it")
+    p.add_argument("--rate", type=playback_rate, default=1.0, help="live mode: playback speed factor")
+
+
+FLAGS = {"weights": "weights", "detector": "detector", "max_keypoints": "max_keypoints", "resize_width": "resize_width",
+         "matches_within_px": "matches_within_px", "precision": "nmnet_precision",
+         "stamp_source": "stamp_source"}  # replay option -> the node parameter it sets
+
+
+NODE_ESTIMATORS = {selector: estimator for estimator, selector in SELECTORS.items()}  # selector -> pose_estimator
+
+
+def given_options(args: argparse.Namespace) -> dict:
+    """The node parameters the command line sets (options given; ``--rectified`` only when present; a --selector the
+    node runs as its ``pose_estimator``)."""
+    given = {name: str(v) if isinstance(v, Path) else v for flag, name in FLAGS.items() if (v := getattr(args, flag)) is not None}
+    if args.selector in NODE_ESTIMATORS:
+        given["pose_estimator"] = NODE_ESTIMATORS[args.selector]
+    return {**given, "rectified": True} if args.rectified else given
+
+
+def node_params(args: argparse.Namespace) -> dict:
+    """The node parameters a replay runs with: the --params-file's (or the defaults), then the options given."""
+    params = (read_params_file(args.params_file, warn=lambda m: print(f"warning: {m}", file=sys.stderr)) if args.params_file
+              else {name: default for name, (default, _, _) in PARAMS.items()})
+    return {**params, **given_options(args)}
+
+
+def gt_camera(text: str) -> np.ndarray:
+    """``--gt-camera``'s value as a 4x4 pose; argparse names the option and the value when it is not one."""
+    try:
+        return parse_pose(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from e
+
+
+def node_value(name: str) -> Callable[[str], object]:
+    """An argparse type for an option that sets node parameter ``name``: the node's own type and range check, so a
+    value the node would refuse stops the command there, naming the option (argparse adds it) and the range."""
+    kind = type(PARAMS[name][0])
+
+    def parse(text: str) -> object:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if (why := check_value(name, value)) is not None:
+            raise argparse.ArgumentTypeError(why)
+        return value
+
+    return parse
+
+
+playback_rate = bounded(float, 0.0, "a speed factor > 0 (1 = as recorded, 0.5 = half speed)", strict=True)  # --rate
+seconds = bounded(float, 0.0, "seconds, a number >= 0")  # --start, --duration
+
+
+def replay_window(args: argparse.Namespace) -> tuple[float, float] | None:
+    """The part of the bag ``--start`` and ``--duration`` ask for, in seconds after its first frame (None: all)."""
+    if args.start is None and args.duration is None:
+        return None
+    start = args.start or 0.0
+    return start, start + args.duration if args.duration is not None else float("inf")
+
+
+def gt_frames(text: str) -> tuple[str, str]:
+    """``--gt-tf``'s value, PARENT[:CHILD], as two frame names ("" for a CHILD not given: the images' frame)."""
+    parent, sep, child = text.partition(":")
+    if not parent.strip("/") or sep and not child.strip("/"):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected PARENT or PARENT:CHILD, frame names (e.g. world, or "
+                                         "world:camera_optical_frame)")
+    return parent, child
+
+
+def ground_truth(reader: BagReader, args: argparse.Namespace, image_topic: str) -> Trajectory | None:
+    """What the replay scores against: the ``--gt`` TUM file, else ``--gt-tf``'s transforms on /tf, else the bag's
+    ground-truth topic (each looked up by stamp: :meth:`Trajectory.poses_at`), else nothing; moved to the camera by
+    ``--gt-camera`` when it tracks a body. A file or transform that is not there stops the replay, naming it.
+    ``image_topic``: the frames', whose frame_id ``--gt-tf`` is checked against."""
+    if args.gt is not None:
+        truth = read_tum(args.gt)
+    elif args.gt_tf is not None:
+        camera_frame = image_frame(reader, image_topic) if args.gt_camera is None or not args.gt_tf[1] else ""
+        parent, child = args.gt_tf
+        if not child and not camera_frame.strip("/"):
+            raise BagError(f"--gt-tf {parent}: the images on {image_topic} name no frame (an empty header.frame_id); "
+                           f"give the camera's frame: --gt-tf {parent}:CHILD")
+        truth = tf_ground_truth(reader, args.gt_topic or "/tf", parent, child or camera_frame, camera_frame=camera_frame)
+    else:
+        truth = bag_ground_truth(reader, args.gt_topic)
+    return truth.moved(args.gt_camera) if truth is not None and args.gt_camera is not None else truth
+
+
+def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, str]:
+    """Stop before any processing when an output would overwrite an input or cannot be written; the plots' folder
+    and file-name prefix.
+
+    The summary and the plots are written last, so a bad ``--json`` or ``--plots`` found only then would lose them
+    after the whole replay. Beside ``--out`` the plots carry its name, so replays of several bags into one folder
+    (``--out results/a.mcap``, ``--out results/b.mcap``) keep each one's plots.
+    """
+    if args.json is not None and args.json.resolve() == args.out.resolve():
+        raise ValueError(f"--json {args.json} is also --out: give the summary its own file")
+    not_a_folder(args.out, "--out", "nmnet.mcap")  # the rest of --out's checks come as the output is opened
+    not_an_input(args.out, "--out", inputs)
+    if args.out.suffix != ".mcap" and not args.out.exists():  # an existing file: McapOutput says whose it is
+        raise ValueError(f"--out {args.out}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know "
+                         f"by its .mcap suffix: give {args.out.with_suffix('.mcap')}")
+    output_file(args.json, "--json", "summary.json", inputs)
+    if args.plots is not None:
+        output_folder(args.plots, "--plots", "the plots", inputs, [f"{name}.png" for name in PLOTS])
+        return args.plots, ""
+    prefix = f"{args.out.stem}_"  # in --out's folder, whose writability is checked as the output is opened
+    for name in PLOTS:
+        not_someone_elses(args.out.parent / f"{prefix}{name}.png", "the plot")
+    return args.out.parent, prefix
+
+
+def main(args: argparse.Namespace) -> int:
+    """Entry point of ``nmnet replay``: offline through the front end here, or ``--live`` through the node."""
+    reader = BagReader(args.bag)  # a missing or unreadable bag stops here
+    plots_dir, plots_prefix = check_outputs(args, [reader.path, *reader.files, args.gt, args.camera, args.params_file,
+                                                   args.weights])
+    params = node_params(args)  # a bad parameters file stops here, naming it
+    topics = {"image_topic": args.image_topic, "info_topic": args.info_topic}
+    if args.live:
+        from .live import live_topics, require_ros
+
+        require_ros()  # no ROS here: stop, naming the package, before the output file is made
+        chosen = live_topics(reader, **topics)  # likewise a ROS 1 bag, a topic it lacks
+        if args.selector is not None and args.selector not in NODE_ESTIMATORS:
+            raise ValueError(f"--selector {args.selector}: the node runs {', '.join(NODE_ESTIMATORS)} (its pose_estimator); "
+                             "replay without --live for the others")
+    else:
+        chosen = choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
+    camera = read_camera_yaml(args.camera, chosen["image"]) if args.camera else None  # a bad file stops here, naming it
+    truth = ground_truth(reader, args, chosen["image"])  # likewise a bad --gt file, --gt-topic or --gt-tf
+    if args.live:
+        if params["weights"]:
+            load_model(params["weights"])  # the node would stop on it; stop before the output file is made
+        return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params, truth, chosen)
+    cfg = frontend_config(params)
+    if args.selector is not None:
+        cfg["selector"] = args.selector
+    fe = Frontend(None, cfg)  # bad weights stop here, before the output file is made
+    base_fe = Frontend(None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
+                              "resize_width": cfg["resize_width"]}) if args.baseline else None
+    out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
+    reading = {"camera": camera, "rectified": params["rectified"], "recorded": params["stamp_source"] == "arrival",
+               "window": replay_window(args), "max_pixels": params["max_image_pixels"]}
+    runs, interrupted = [], False
+    try:
+        run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics, **reading)
+        runs.append(run)
+        if base_fe is not None:
+            base, _, _ = process_bag(reader, None, base_fe, truth, progress=not args.no_progress, topics=topics,
+                                     **reading, log=lambda _: None)  # the same frames: said once, by the first pass
+            base.name = "SIFT+ratio+MAGSAC++"
+            runs.append(base)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.main raises it as Ctrl-C)
+        interrupted = True
+        print("interrupted: closing the output file", file=sys.stderr)
+    finally:
+        out.close()
+    if not runs:
+        print(f"output: {args.out} ({out.count} messages)")
+        return 130
+    summary = {**runs[0].summary(n), "parameters": params}  # what it ran with, as the node's parameters
+    if args.selector is not None:
+        summary["selector"] = args.selector
+    print_summary(summary, runs[0].name)
+    if len(runs) > 1:
+        summary["baseline"] = runs[1].summary(n)
+        print_summary(summary["baseline"], runs[1].name)
+    if args.json:  # before the plots: the summary is what a script reads
+        write_json(args.json, summary)
+    plots_dir.mkdir(parents=True, exist_ok=True)
+    for p in write_plots(runs, overlay, plots_dir, plots_prefix):
+        print(f"plot: {p}")
+    print(f"output: {args.out} ({out.count} messages)")
+    return 130 if interrupted else 0
+
+
+def live_node_args(args: argparse.Namespace) -> list[str]:
+    """The node's ``--ros-args`` for a live replay: the --params-file, then each option given as ``-p``."""
+    out = ["--params-file", str(args.params_file)] if args.params_file else []
+    for name, v in given_options(args).items():
+        out += ["-p", f"{name}:={str(v).lower() if isinstance(v, bool) else v}"]
+    return out
+
+
+def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: dict, interrupted: bool = False) -> dict:
+    """A live replay's summary from the player's ``stats`` (:func:`~.live.play_live`), printed: frames published,
+    processed, dropped and why (the node's last /diagnostics; ``None`` where no report came), latency, the recording's
+    ``scores`` and ``tracks``. ``interrupted``: the replay was stopped, so the last frames were in flight and the node's
+    last report (1 Hz) is older than them: the drops are not explained."""
+    lat = np.array(stats["latency_ms"]) if stats["latency_ms"] else np.zeros(1)
+    processed = stats["results"]  # one ~/matches per processed frame
+    diag = stats["diagnostics"]  # the node's last /diagnostics: why frames were dropped
+    warnings = {k.removeprefix("warn_"): int(v) for k, v in diag.items() if k.startswith("warn_")}
+    summary = {"frames": stats["published"], "processed": processed, "dropped": stats["published"] - processed,
+               "received": int(diag["frames_received"]) if diag else None,  # None: no report came from the node
+               "dropped_busy": int(diag["frames_dropped"]) if diag else None,
+               "fps": processed / wall, "latency_p50_ms": float(np.percentile(lat, 50)),
+               "latency_p90_ms": float(np.percentile(lat, 90)), **scores, "tracks": tracks, "warnings": warnings,
+               "parameters": params}
+    why = (f" ({summary['dropped_busy']} replaced by a newer frame while the node was busy, "
+           f"{summary['frames'] - summary['received']} not received)" if diag and summary["dropped"] else "")
+    if interrupted:
+        summary["interrupted"] = True
+        why = " (interrupted: the last frames were in flight)" if summary["dropped"] else " (interrupted)"
+    if stats.get("node_exit") is not None:  # the node died: the drops are its, and the bag was not played to its end
+        summary["node_exit_code"] = stats["node_exit"]
+        why = f" (the node exited with code {stats['node_exit']} during the replay)"
+    print(f"live: {summary['processed']}/{summary['frames']} frames processed, {summary['dropped']} dropped{why}, "
+          f"latency p50 {summary['latency_p50_ms']:.0f} ms p90 {summary['latency_p90_ms']:.0f} ms")
+    if "node_exit_code" in summary:
+        print(f"error: nmnet_node exited with code {summary['node_exit_code']} after {summary['frames']} frames were "
+              "played; the rest of the bag was not (a negative code is the signal that ended it: -9, SIGKILL, is what "
+              "the kernel's out-of-memory killer sends; otherwise the node's log above says why)", file=sys.stderr)
+    if warnings:  # frames the node skipped for bad input are among the dropped ones too
+        print("   the node's warnings (its /diagnostics): " + ", ".join(f"{k} {v}" for k, v in sorted(warnings.items())))
+    print_tracks(summary["tracks"])
+    print_scores(summary)
+    return summary
+
+
+def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, camera: Camera | None, params: dict,
+              truth: Trajectory | None = None, topics: dict[str, str | None] | None = None) -> int:
+    """Live mode: play into the node, record, score like the offline mode."""
+    from .live import new_stats, play_live, recording_summary
+
+    t0 = time.perf_counter()
+    stats, interrupted = new_stats(), False  # filled as it plays: an interrupted replay sums up what it recorded
+    try:
+        recorded = params["stamp_source"] == "arrival"  # the player stamps frames as the bag recorded them; the node keeps it
+        node_args = live_node_args(args) + (["-p", "stamp_source:=header"] if recorded else [])
+        play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded,
+                  window=replay_window(args), stats=stats)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.main raises it as Ctrl-C)
+        interrupted = True
+        print("interrupted: closing the output file", file=sys.stderr)
+    finally:
+        out.close()
+        for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
+            print(f"warning: {w}")
+    if not interrupted and (w := window_missed(replay_window(args), stats["published"])):
+        print(f"warning: {w}")
+    summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth), params, interrupted)
+    print(f"output: {args.out} ({out.count} messages)")
+    if args.json:
+        write_json(args.json, summary)
+    return 130 if interrupted else 1 if "node_exit_code" in summary else 0

@@ -1,0 +1,99 @@
+"""Scoring a pass over a recording against its ground truth, pair by pair: what the offline replay and the live
+scoring report alike (rotation and translation-direction errors, pose AUC, pairs without motion)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.geometry import PoseEstimate, pose_auc, pose_error_deg, relative_pose, rotation_error_deg
+from ..core.pipeline import RESTARTS
+from ..io.trajectory import Trajectory
+
+STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
+
+
+def _gt_step(status: str, T_prev: np.ndarray | None, T_cur: np.ndarray | None
+             ) -> tuple[np.ndarray, np.ndarray, bool] | None:
+    """The ground truth's (R, t) over a pair and whether it moved (over STATIC_GT_M); None when the pair cannot be
+    scored (a pose missing, a restart of the chain)."""
+    if T_prev is None or T_cur is None or status in RESTARTS:
+        return None
+    R, t = relative_pose(T_prev, T_cur)
+    return R, t, bool(np.linalg.norm(t) > STATIC_GT_M)
+
+
+def frame_error(status: str, pose: PoseEstimate | None, T_prev: np.ndarray | None, T_cur: np.ndarray | None
+                ) -> tuple[float, float] | None:
+    """(rot, trans) error of one frame's result (a FrameResult's status and pose, or what a recorded
+    relative_pose says: ``no_estimate`` too); failures count as 180; None when not scorable."""
+    step = _gt_step(status, T_prev, T_cur)
+    return None if step is None else _step_error(status, pose, *step)
+
+
+def _step_error(status: str, pose: PoseEstimate | None, R: np.ndarray, t: np.ndarray, moving: bool
+                ) -> tuple[float, float] | None:
+    """:func:`frame_error` against the ground truth's step (R, t, moving) over the pair."""
+    if status == "no_motion":
+        return None if not moving else (180.0, 180.0)
+    if status != "ok" or pose is None:
+        return (180.0, 180.0)
+    if not moving:
+        return None
+    return pose_error_deg(pose, R, t)
+
+
+class PairScores:
+    """A pass's scores against ground truth, pair by pair, as the offline replay and the live scoring collect them:
+    the (rotation, translation) errors of :func:`frame_error` (failures included, at 180) with their frames'
+    stamps, and the rotation errors of the estimates over pairs whose ground truth did not move (standing, or
+    turning on the spot), which have no direction to score."""
+
+    def __init__(self) -> None:
+        self.errors: list[tuple[float, float]] = []
+        self.stamps: list[float] = []
+        self.still: list[float] = []
+
+    def add(self, status: str, pose: PoseEstimate | None, T_prev: np.ndarray | None, T_cur: np.ndarray | None,
+            stamp: float) -> None:
+        """Score the pair that ends at the frame stamped ``stamp``."""
+        if (step := _gt_step(status, T_prev, T_cur)) is None:
+            return
+        if (err := _step_error(status, pose, *step)) is not None:
+            self.errors.append(err)
+            self.stamps.append(stamp)
+        elif pose is not None and not step[2]:
+            self.still.append(rotation_error_deg(pose.R, step[0]))
+
+    def summary(self) -> dict:
+        """:func:`error_summary` of the pairs scored."""
+        return error_summary(self.errors, self.still)
+
+
+def error_summary(errors: list[tuple[float, float]], still: list[float] | None = None) -> dict:
+    """Median rotation / translation errors, pose AUC@5/10/20 (percent) and the pair count of (rot, trans) errors
+    in degrees, and the median rotation error of the ``still`` pairs (:class:`PairScores`): what the offline replay
+    and the live scoring report alike."""
+    e = np.array(errors) if errors else np.zeros((0, 2))
+    aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
+    return {"median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,
+            "median_trans_deg": float(np.median(e[:, 1])) if len(e) else None,
+            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2], "scored_pairs": len(e),
+            "still_pairs": len(still or []), "median_still_rot_deg": float(np.median(still)) if still else None}
+
+
+def window_missed(window: tuple[float, float] | None, frames: int) -> str | None:
+    """What to say when ``--start``/``--duration`` left no frame to replay (offline and live alike)."""
+    if window is None or frames:
+        return None
+    return (f"no frame in --start/--duration's {window[0]:g} .. {window[1]:g} s: the bag ends before (both count "
+            "seconds after the bag's first frame)")
+
+
+def truth_missed(truth: Trajectory | None, stamps: list[float]) -> str | None:
+    """What to say when the ground truth has a pose for none of the frames (stamped on another clock, or of another
+    recording), instead of a summary that silently scores nothing."""
+    if truth is None or not stamps or np.isfinite(truth.poses_at(np.asarray(stamps))[:, 0, 0]).any():
+        return None
+    return (f"the ground truth has no pose at any frame's stamp (poses {truth.stamps[0]:.3f} .. "
+            f"{truth.stamps[-1]:.3f} s, frames {min(stamps):.3f} .. {max(stamps):.3f} s): nothing is scored; the two "
+            "must be stamped on the same clock")
