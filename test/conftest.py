@@ -1,7 +1,14 @@
-"""Shared fixtures: the real data in ../shared/data and a session-wide feature cache."""
+"""Shared fixtures: the real data in ../shared/data and a session-wide feature cache; the test tiers' markers.
+
+Markers (pyproject.toml), applied here so that no test has to remember them: ``ros`` for a test over real DDS (the
+``ros`` fixture, or a node or live replay started as its own process), ``data`` for one that reads ../shared/data
+(itself or through a fixture). ``slow`` is set by hand on the tests that take seconds. ``make test-fast`` runs the
+rest: ``-m "not ros and not data and not slow"``.
+"""
 
 from __future__ import annotations
 
+import inspect
 import os
 from pathlib import Path
 
@@ -18,6 +25,33 @@ def data_dir(name: str) -> Path:
     if not p.is_dir():
         pytest.skip(f"{p} not present (the shared data sits beside the clone in development and CI)")
     return p
+
+
+ROS_SIGNS = ("NodeProcess", "node_and_peer", '"--live"', "'--live'", '"demo"', "play_live")  # a node as its own process
+
+
+def _source(func) -> str:
+    try:
+        return inspect.getsource(func)
+    except (OSError, TypeError):
+        return ""
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark each test ``ros`` and ``data`` by what it uses (see the module's docstring)."""
+    reads_data: dict[str, bool] = {}
+    for item in items:
+        func = getattr(item, "function", None)
+        own = _source(func)
+        defs = getattr(getattr(item, "_fixtureinfo", None), "name2fixturedefs", {})
+        for name in item.fixturenames:
+            if name not in reads_data:
+                reads_data[name] = any("data_dir(" in _source(d.func) or "planar_views(" in _source(d.func)
+                                       for d in defs.get(name, ()))
+        if "ros" in item.fixturenames or any(sign in own for sign in ROS_SIGNS):
+            item.add_marker(pytest.mark.ros)
+        if "data_dir(" in own or "planar_views(" in own or any(reads_data[n] for n in item.fixturenames):
+            item.add_marker(pytest.mark.data)
 
 
 @pytest.fixture(scope="session")

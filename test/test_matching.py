@@ -160,7 +160,7 @@ def test_frontend_readies_the_screening_kernels_before_the_first_frame():
 
     if not native_bf16():
         pytest.skip("this CPU has no native bfloat16: matching runs the float32 GEMM, nothing to compile")
-    code = ("from nmnet_ros import matching; from nmnet_ros.core.pipeline import Frontend; "
+    code = ("from nmnet_ros.core import matching; from nmnet_ros.core.pipeline import Frontend; "
             "before = len(matching._recheck.signatures); Frontend(); print(before, len(matching._recheck.signatures))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["0", "1"]

@@ -994,7 +994,7 @@ def test_the_package_installs_launch_config_and_ament_index(tmp_path):
     assert {"share/nmnet_ros/launch/nmnet.launch.xml", "share/nmnet_ros/config/nmnet.yaml", "share/nmnet_ros/package.xml",
             "share/ament_index/resource_index/packages/nmnet_ros"} <= share
     entry = next(zipfile.ZipFile(wheel).read(n).decode() for n in names if n.endswith("entry_points.txt"))
-    assert "nmnet_node = nmnet_ros.tools.cli:node_main" in entry and "nmnet = nmnet_ros.tools.cli:main" in entry
+    assert "nmnet_node = nmnet_ros.ros.entry:node_main" in entry and "nmnet = nmnet_ros.tools.cli:main" in entry
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), [n for n in names if "dist-info" in n]
 
 
@@ -1003,7 +1003,7 @@ def test_lasting_warnings_repeat_ever_less_often_until_cleared(ros, monkeypatch)
     long as the one before, up to 10 min, and a new episode (the condition cleared, then back) logs at once.
     The node runs in this process, driven as its once-a-second check drives it; its logger records what it
     would print. The message (no_publisher's queries the ROS graph) is built only when it is logged."""
-    from nmnet_ros import node as nm
+    from nmnet_ros.ros import node as nm
 
     due = [s for s in range(2000) if nm.lasting_warning_due(s, 30)]
     assert due == [0, 30, 90, 210, 450, 930, 1530]  # gaps 30, 60, 120, 240, 480, then 600

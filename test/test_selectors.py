@@ -259,12 +259,34 @@ def test_frontend_reconfigures_while_running(tmp_path):
         fe.reconfigure({"weights": str(bad)})  # refused even though ratio+magsac does not use the network
     with pytest.raises(ValueError, match="unknown detector"):
         fe.reconfigure({"detector": "orb", "threshold_px": 0.5})
-    with pytest.raises(KeyError, match="thresh"):
+    with pytest.raises(ValueError, match=r"unknown front-end setting\(s\) \['thresh'\]"):
         fe.reconfigure({"thresh": 0.5})
+    with pytest.raises(ValueError, match=r"unknown front-end setting\(s\) \['thresh'\]"):  # a typo was ignored at start
+        Frontend(seq.camera, {"selector": "ratio+magsac", "thresh": 0.5})
     assert fe.select is select and fe.config == config and fe.prev is not None
     fe.reconfigure({"max_keypoints": 500})
     assert fe.process(img[0], 0.3).status == "first_frame"
     assert fe.process(img[1], 0.4).num_keypoints <= 500
+
+
+def test_a_change_while_a_frame_is_related_applies_from_the_next_frame():
+    """The node's `ros2 param set` runs beside the stages: a change that lands while a frame is being related must not
+    reach that frame half-way (its selection with the old settings, its status with the new). Here the change lands
+    inside the selector, mid-frame: the frame finishes with the settings it started with, the next takes the new."""
+    from nmnet_ros.core.pipeline import Frontend
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    fe = Frontend(seq.camera, {"selector": "ratio+magsac"})
+    fe.process(seq.image(10), 0.0)
+    select = fe.select
+
+    def select_then_change(corr):
+        fe.reconfigure({"min_matches": 100000})  # no pair has that many: "too_few_matches" under the new settings
+        return select(corr)
+
+    fe.settings = type(fe.settings)(fe.settings.config, fe.settings.detector, select_then_change)
+    assert fe.process(seq.image(11), 0.1).status == "ok"
+    assert fe.config["min_matches"] == 100000 and fe.process(seq.image(12), 0.2).status == "too_few_matches"
 
 
 def test_a_detector_swap_between_the_two_stages_starts_a_new_chain():

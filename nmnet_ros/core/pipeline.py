@@ -195,16 +195,36 @@ def related(a: Prepared, b: Prepared) -> bool:
     return a.detector is b.detector and (a.size, a.full) == (b.size, b.full)
 
 
+def _check_known(config: dict) -> None:
+    """ValueError naming a setting the front end does not have (a typo would otherwise be ignored)."""
+    if unknown := sorted(set(config) - set(DEFAULT_CONFIG)):
+        raise ValueError(f"unknown front-end setting(s) {unknown}; known: {', '.join(DEFAULT_CONFIG)}")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The front end's settings and what is built from them, swapped whole by :meth:`Frontend.reconfigure`: each
+    stage reads them once per frame, so a frame never mixes the settings before and after a change."""
+
+    config: dict
+    detector: Detector
+    select: Callable[[Correspondences], Selection]
+
+    def match_key(self) -> tuple:
+        """The matching settings, as recorded with matches made in the first stage."""
+        c = self.config
+        return (("ratio", c["ratio"]), ("mutual", c["mutual"]), ("gemm", c["match_gemm"]))
+
+
 class Frontend:
     """Hessian-affine + NN matching + NM-Net (or another selector) + relative pose, frame to frame."""
 
     def __init__(self, camera: Camera | None = None, config: dict | None = None) -> None:
-        self.config = {**DEFAULT_CONFIG, **(config or {})}
-        c = self.config
+        _check_known(config or {})
+        c = {**DEFAULT_CONFIG, **(config or {})}
         _check_choices(c)
         self.camera = camera
-        self.detector = _detector(c)
-        self.select = _selector(c)
+        self.settings = Settings(c, _detector(c), _selector(c))
         warm_up_matching()  # like the detector's and NM-Net's kernels: compiled before the first frame
         self.prev: tuple[float, Prepared] | None = None  # the previous frame: stamp, the first stage's output
         self._last_prepared: Prepared | None = None  # the first stage's own previous frame
@@ -212,24 +232,36 @@ class Frontend:
         self._next_track = 0  # the first unused track id (ids are never reused, not even after a restart)
         self._motion: np.ndarray | None = None  # the last pair's translation direction, when that pair had a pose
 
+    @property
+    def config(self) -> dict:
+        """The current settings (a copy: change them with :meth:`reconfigure`)."""
+        return dict(self.settings.config)
+
+    @property
+    def detector(self) -> Detector:
+        return self.settings.detector
+
+    @property
+    def select(self) -> Callable[[Correspondences], Selection]:
+        return self.settings.select
+
     def reconfigure(self, changes: dict) -> None:
-        """Apply config changes while running (the node's ``ros2 param set``).
+        """Apply config changes while running (the node's ``ros2 param set``), from the next frame of each stage.
 
         The new detector and selector are built before anything is swapped, so a change that fails
-        (an unreadable weights file, an unknown name) raises and leaves the front end as it was. A new
-        detector restarts the chain: the next frame is a first frame. In the node this runs beside the two
-        stages, so each frame carries its detector: one detected before the swap is never related to one after.
+        (an unreadable weights file, an unknown name) raises and leaves the front end as it was. The settings are
+        swapped whole (:class:`Settings`) and each stage reads them once per frame, so a frame in flight finishes
+        with the settings it started with. A new detector restarts the chain: each frame carries its detector, and
+        one detected before the swap is never related to one after.
         """
-        unknown = sorted(set(changes) - set(DEFAULT_CONFIG))
-        if unknown:
-            raise KeyError(f"unknown front-end setting(s) {unknown}; known: {', '.join(DEFAULT_CONFIG)}")
-        c = {**self.config, **changes}
+        _check_known(changes)
+        old = self.settings
+        c = {**old.config, **changes}
         _check_choices(c)
-        detector = _detector(c) if any(c[key] != self.config[key] for key in DETECTOR_KEYS) else self.detector
-        select = _selector(c) if any(c[key] != self.config[key] for key in SELECTOR_KEYS) else self.select
-        self.config, self.select = c, select
-        if detector is not self.detector:
-            self.detector = detector  # the previous frame's features are of the old one: the next frame is a first frame
+        detector = _detector(c) if any(c[key] != old.config[key] for key in DETECTOR_KEYS) else old.detector
+        select = _selector(c) if any(c[key] != old.config[key] for key in SELECTOR_KEYS) else old.select
+        self.settings = Settings(c, detector, select)
+        if detector is not old.detector:
             self._cost_ms.clear()  # other features, other costs
 
     def _continue_tracks(self, before: Prepared, p: Prepared, idx: np.ndarray, mask: np.ndarray,
@@ -252,24 +284,21 @@ class Frontend:
         """Features of one image (the expensive stage)."""
         return self.detector(image)
 
-    def _match_key(self) -> tuple:
-        return (("ratio", self.config["ratio"]), ("mutual", self.config["mutual"]), ("gemm", self.config["match_gemm"]))
-
     def _note_cost(self, part: str, ms: float) -> None:
         old = self._cost_ms.get(part)
         self._cost_ms[part] = ms if old is None else 0.8 * old + 0.2 * ms
 
-    def _match_in_first_stage(self) -> bool:
-        where = self.config["match_stage"]
+    def _match_in_first_stage(self, s: Settings) -> bool:
+        where = s.config["match_stage"]
         if where != "auto":
             return where == "first"
         cost = [self._cost_ms.get(part) for part in ("detect", "match", "rest")]
         return None not in cost and match_first(*cost)
 
-    def _match(self, f0: Features, f1: Features, timings: dict[str, float]) -> Matches:
-        """Putative matches with the current settings, timed (and noted as a stage cost)."""
+    def _match(self, s: Settings, f0: Features, f1: Features, timings: dict[str, float]) -> Matches:
+        """Putative matches with the settings ``s``, timed (and noted as a stage cost)."""
         t = time.perf_counter()
-        m = match_descriptors(f0.descriptors, f1.descriptors, dict(self._match_key()))
+        m = match_descriptors(f0.descriptors, f1.descriptors, dict(s.match_key()))
         timings["match"] = 1000 * (time.perf_counter() - t)
         self._note_cost("match", timings["match"])
         return m
@@ -277,16 +306,16 @@ class Frontend:
     def prepare(self, image: np.ndarray) -> Prepared:
         """First stage: detect, then match to the frame prepared before this one (when of the same size)."""
         t = time.perf_counter()
+        s = self.settings  # read once: reconfigure may swap them meanwhile
         full = (image.shape[1], image.shape[0])
-        image = downscaled(image, self.config["resize_width"])
-        detector = self.detector  # read once: reconfigure may swap it meanwhile
-        p = Prepared(detector(image), (image.shape[1], image.shape[0]), {}, full, detector=detector, camera=self.camera)
+        image = downscaled(image, s.config["resize_width"])
+        p = Prepared(s.detector(image), (image.shape[1], image.shape[0]), {}, full, detector=s.detector, camera=self.camera)
         p.timings_ms["detect"] = 1000 * (time.perf_counter() - t)  # with the downscaling, if any
         self._note_cost("detect", p.timings_ms["detect"])
         last, self._last_prepared = self._last_prepared, p
-        if last is not None and related(last, p) and self._match_in_first_stage():
-            p.match_key, p.against = self._match_key(), last.feats
-            p.matches = self._match(last.feats, p.feats, p.timings_ms)
+        if last is not None and related(last, p) and self._match_in_first_stage(s):
+            p.match_key, p.against = s.match_key(), last.feats
+            p.matches = self._match(s, last.feats, p.feats, p.timings_ms)
         return p
 
     def process(self, image: np.ndarray, stamp: float) -> FrameResult:
@@ -297,6 +326,8 @@ class Frontend:
         """Second stage: relate a prepared frame to the previous one (its matches reused when they were
         made against that very frame with the current settings). The frame's own camera is the one set when it
         was prepared: in the node the first stage sets the next frame's while this one is being related."""
+        s = self.settings  # read once: reconfigure may swap them meanwhile
+        c = s.config
         camera = p.camera if p.camera is not None else self.camera
         if camera is None:
             raise RuntimeError("Frontend has no camera: set .camera (from CameraInfo or parameters) first")
@@ -308,12 +339,11 @@ class Frontend:
             return FrameResult(stamp, "first_frame", timings_ms=timings, num_keypoints=len(feats))
         if not related(prev[1], p):
             return FrameResult(stamp, "size_changed", timings_ms=timings, num_keypoints=len(feats))
-        if stamp_order(prev[0], stamp, self.config["time_jump_s"]) == "time_jump":
+        if stamp_order(prev[0], stamp, c["time_jump_s"]) == "time_jump":
             return FrameResult(stamp, "time_jump", timings_ms=timings, num_keypoints=len(feats))
-        c = self.config
         before = prev[1].feats
-        fits = p.against is before and p.match_key == self._match_key()
-        m = p.matches if fits else self._match(before, feats, timings)
+        fits = p.against is before and p.match_key == s.match_key()
+        m = p.matches if fits else self._match(s, before, feats, timings)
         k0, k1 = before.keypoints[m.idx[:, 0]], feats.keypoints[m.idx[:, 1]]
         cam0, cam = prev[1].camera_detected(camera), p.camera_detected(camera)
         base = dict(k0=to_frame_pixels(k0, size, p.full), k1=to_frame_pixels(k1, size, p.full), timings_ms=timings,
@@ -324,24 +354,25 @@ class Frontend:
         corr = Correspondences(k0, k1, before.frames[m.idx[:, 0]], feats.frames[m.idx[:, 1]],
                                cam0.normalize(k0), cam.normalize(k1), m.ratio, m.mutual, cam.focal, size, size)
         t = time.perf_counter()
-        sel = self.select(corr)
+        sel = s.select(corr)
         timings["select+pose"] = 1000 * (time.perf_counter() - t)
         self._note_cost("rest", timings["select+pose"])
-        status, pose = self._status(sel, corr, k0, k1, cam.focal)
+        status, pose = self._status(c, sel, corr, k0, k1, cam.focal)
         if status == "ok":
             pose = one_of_a_plane(pose, corr.x0[sel.mask], corr.x1[sel.mask], cam.focal, motion)
             self._motion = pose.t
-        mask = self._published(sel, pose, corr) if status == "ok" else sel.mask
+        mask = self._published(c, sel, pose, corr) if status == "ok" else sel.mask
         base["scores"] = sel.scores.astype(np.float32) if sel.scores is not None else mask.astype(np.float32)
         base["mask"] = mask
         base["pose_matches"] = int(sel.mask.sum())
         base["track_ids"], base["tracks_continued"] = self._continue_tracks(prev[1], p, m.idx, mask, base["scores"])
         return FrameResult(stamp, status, pose=pose, **base)
 
-    def _status(self, sel: Selection, corr: Correspondences, k0: np.ndarray, k1: np.ndarray, focal: float
+    @staticmethod
+    def _status(c: dict, sel: Selection, corr: Correspondences, k0: np.ndarray, k1: np.ndarray, focal: float
                 ) -> tuple[str, PoseEstimate | None]:
-        """What the selection ``sel`` makes of the pair: (status, pose)."""
-        if sel.mask.sum() < self.config["min_matches"]:
+        """What the selection ``sel`` makes of the pair with the settings ``c``: (status, pose)."""
+        if sel.mask.sum() < c["min_matches"]:
             return "too_few_matches", None
         # No measurable baseline: the camera stood (flow below static_flow_px) or only turned (the rotation fitted
         # alone leaves less than static_parallax_px: keypoint noise). The essential matrix is undefined then (MAGSAC++
@@ -350,14 +381,15 @@ class Frontend:
         # would absorb it.
         flow = np.median(np.linalg.norm(k1[sel.mask] - k0[sel.mask], axis=1))  # in the pixels detected on
         R, angles = fit_rotation(corr.x0[sel.mask], corr.x1[sel.mask])
-        if flow < self.config["static_flow_px"] or np.median(angles) * focal < self.config["static_parallax_px"]:
+        if flow < c["static_flow_px"] or np.median(angles) * focal < c["static_parallax_px"]:
             return "no_motion", PoseEstimate(R, np.zeros(3), np.zeros((3, 3)), sel.mask)
         return ("pose_failed", None) if sel.pose is None else ("ok", sel.pose)
 
-    def _published(self, sel: Selection, pose: PoseEstimate, corr: Correspondences) -> np.ndarray:
+    @staticmethod
+    def _published(c: dict, sel: Selection, pose: PoseEstimate, corr: Correspondences) -> np.ndarray:
         """The matches ~/matches carries: the pose fit's inliers, or with ``matches_within_px`` every match the fit
         was given that lies within that Sampson distance of the final pose (more matches, longer tracks)."""
-        px = self.config["matches_within_px"]
+        px = c["matches_within_px"]
         if not px:
             return sel.mask
         candidates = sel.candidates if sel.candidates is not None else sel.mask
