@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.installed
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 TORCH_PIN   := $(shell grep -E '^torch==' requirements.txt)
 
-.PHONY: setup test demo lint clean cpu-torch
+.PHONY: setup test test-fast demo lint clean cpu-torch
 
 $(STAMP): requirements.txt setup.py package.xml
 	$(PYTHON) -m venv $(VENV)
@@ -30,8 +30,13 @@ endif
 lint: setup
 	$(BIN)/ruff check .
 
+# everything (the README's test command; CI's), with the 15 slowest tests named at the end
 test: setup lint
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q --durations=15
+
+# the unit tests: no DDS, no ../shared/data, nothing slow (markers: pyproject.toml, applied in test/conftest.py)
+test-fast: setup
+	$(BIN)/pytest -q -m "not ros and not data and not slow"
 
 demo: setup
 	$(BIN)/nmnet demo

@@ -27,7 +27,7 @@ def data_dir(name: str) -> Path:
     return p
 
 
-ROS_SIGNS = ("NodeProcess", "node_and_peer", '"--live"', "'--live'", '"demo"', "play_live")  # a node as its own process
+ROS_SIGNS = ("NodeProcess", "node_and_peer", '"--live"', "'--live'", '"demo"', "play_live", "live_replay_playing")  # a node
 
 
 def _source(func) -> str:

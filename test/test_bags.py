@@ -120,6 +120,7 @@ def test_a_compressed_bag_of_16_bit_frames_keeps_them(tmp_path):
     assert all(np.array_equal(a, b) for a, b in zip(frames["raw"], frames["png"], strict=True))
 
 
+@pytest.mark.slow
 def test_truncated_mcap_reports_and_uses_readable_part(tmp_path):
     src = next(SAMPLE_BAG.glob("*.mcap"))
     cut = tmp_path / "cut.mcap"
@@ -370,6 +371,7 @@ def test_truncated_ros1_bag_is_a_clear_error(bags, tmp_path):
         BagReader(cut)
 
 
+@pytest.mark.slow
 def test_bag_without_images_lists_its_topics(tmp_path):
     from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -396,6 +398,7 @@ def test_bag_without_images_lists_its_topics(tmp_path):
         read_frames(BagReader(tmp_path / "video"))
 
 
+@pytest.mark.slow
 def test_unwritable_output_fails_before_processing(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
@@ -405,6 +408,7 @@ def test_unwritable_output_fails_before_processing(tmp_path):
     assert time.monotonic() - t < 30
 
 
+@pytest.mark.slow
 def test_an_output_that_would_overwrite_an_input_or_a_recording_is_refused_before_processing(tmp_path):
     bag = tmp_path / "in.mcap"
     shutil.copy(next(SAMPLE_BAG.glob("*.mcap")), bag)
@@ -447,6 +451,7 @@ def test_an_output_overwrites_only_an_earlier_output_or_an_empty_file(tmp_path):
     assert text.read_text() == "a user's file named .mcap\n"
 
 
+@pytest.mark.slow
 def test_missing_bag_and_unknown_format(tmp_path):
     r = nmnet("replay", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "o.mcap"))
     assert r.returncode == 2 and "no such bag" in r.stderr
@@ -485,6 +490,7 @@ def test_a_bag_whose_content_is_not_its_extensions_format_is_named(bags, tmp_pat
     assert afile.read_text() == "a user's file"
 
 
+@pytest.mark.slow
 def test_sigterm_mid_replay_leaves_valid_output(tmp_path):
     out = tmp_path / "o.mcap"
     # the kornia reference detector takes ~1 s per frame here: 40 frames leave a wide window to interrupt in

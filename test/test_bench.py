@@ -8,6 +8,7 @@ from nmnet_ros.tools.bench import bench_pipeline
 from nmnet_ros.tools.demo import SAMPLE_BAG
 
 
+@pytest.mark.slow
 def test_pipeline_bench_reports_every_stage_and_the_baseline():
     it, _ = read_frames(BagReader(SAMPLE_BAG))
     frames = [f for _, f in zip(range(3), it, strict=False)]
@@ -48,6 +49,7 @@ def test_bench_threads_option_sets_and_restores_the_thread_counts(capsys):
     assert stop.value.code == 2 and "argument --threads: '0': expected a whole number >= 1" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_hd_bench_times_full_size_against_resize_width():
     """The high-resolution line: 1920x1080 frames at full size and downscaled by resize_width, detection and rate."""
     from nmnet_ros.tools.bench import bench_hd

@@ -15,6 +15,7 @@ CORE = ["core.features", "core.matching", "core.neighbors", "core.geometry", "co
 OFFLINE_TOOLS = ["tools.evaluate", "tools.replay", "tools.make_bag", "tools.bench", "tools.cli", "interface.params"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("modules", [CORE, OFFLINE_TOOLS], ids=["core", "offline-tools"])
 def test_imports_no_ros(modules):
     code = (
@@ -142,6 +143,7 @@ def test_live_mode_checks_every_ros_package_the_player_and_node_import():
     assert imported & ROS_PACKAGES <= set(LIVE_ROS_PACKAGES), imported & ROS_PACKAGES
 
 
+@pytest.mark.slow
 def test_node_help_lists_topics_service_and_every_parameter_without_ros(tmp_path):
     """`nmnet_node --help` prints the usage, topics, the reset service and every parameter with its default and
     range (from params.PARAMS, so it cannot drift), without starting the node, so also without ROS; a -h among the
