@@ -899,7 +899,7 @@ def test_flood_keeps_latency_bounded(ros, tmp_path):
     received, dropped = int(vals["frames_received"]), int(vals["frames_dropped"])
     print(f"sent {n}, received {received} (best effort), results {len(lat)}, dropped {dropped}, latency s: {np.round(lat, 2)}, "
           f"RSS {rss0:.0f} -> {np.round([r for _, r in rss])} -> {rss1:.0f} MB")
-    assert n >= 600 and len(lat) >= 2
+    assert len(lat) >= 2 and received > len(lat) + 1  # a flood: more frames arrived than the node could take
     assert dropped >= received - 1 - len(lat) - 1 > 0  # every received frame not processed is counted
     assert max(lat) < 3 * np.median(lat) + 1.0  # bounded: no queue building up
     assert lat[-1] < 3 * lat[0] + 1.0
