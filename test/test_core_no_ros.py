@@ -274,3 +274,20 @@ def test_a_replay_into_an_existing_folder_or_a_file_without_mcap_suffix_is_refus
         assert f"--out {tmp_path / name}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know by " \
                f"its .mcap suffix: give {tmp_path / 'out.mcap'}" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_every_option_of_every_tool_says_what_it_does_and_its_default():
+    """Several options had no help text, and no --help showed a default."""
+    import argparse
+    import importlib
+
+    from nmnet_ros.tools.cli import SUBCOMMANDS, HelpFormatter
+
+    for name, (module, _) in SUBCOMMANDS.items():
+        p = argparse.ArgumentParser(prog=f"nmnet {name}", formatter_class=HelpFormatter)
+        importlib.import_module(module).add_arguments(p)
+        bare = [a.option_strings or a.dest for a in p._actions if not a.help and not isinstance(a, argparse._HelpAction)]
+        assert not bare, (name, bare)
+    out = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "train", "--help"], capture_output=True, text=True,
+                         check=True).stdout
+    assert "Adam's learning rate (default: 0.001)" in " ".join(out.split())

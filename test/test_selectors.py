@@ -649,3 +649,15 @@ def test_a_zoom_camera_gets_each_frame_through_its_own_camera_info():
     err = pose_error_deg(r.pose, R_gt, t_gt) if r.pose is not None else None
     print(f"{r.status}, {r.num_selected} selected, pose error (rotation, direction) {err}")
     assert r.status == "ok" and err[0] < 0.3 and err[1] < 1.5
+
+
+def test_eval_and_train_take_the_keypoint_count_the_node_runs(tmp_path):
+    """eval and train had no --max-keypoints, so neither could run at the node's max_keypoints other than 2000."""
+    from nmnet_ros.tools.cli import main
+
+    seq = data_dir("kitti-07")
+    assert main(["eval", f"{seq}:120-122", "--gaps", "1", "--methods", "ratio", "--max-keypoints", "300",
+                 "--plot", str(tmp_path / "e.png"), "--cache", str(tmp_path / "cache")]) == 0
+    assert [p.name.split("-k")[1].split("-")[0] for p in (tmp_path / "cache").iterdir()] == ["300"]
+    with pytest.raises(SystemExit, match="2"):  # the node's range, said by argparse
+        main(["eval", str(seq), "--max-keypoints", "50"])

@@ -264,7 +264,7 @@ def correspondence_counts(text: str) -> tuple[int, ...]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet bench``."""
     p.add_argument("--sizes", type=correspondence_counts, default=(1000, 2000), help="correspondence counts, e.g. 1000,2000")
-    p.add_argument("--repeat", type=whole(1), default=20)
+    p.add_argument("--repeat", type=whole(1), default=20, help="timed runs of each step (the median is reported)")
     p.add_argument("--json", type=file_path, default=None, help="write the numbers as JSON")
     p.add_argument("--pipeline", action="store_true", help="also time every pipeline stage on the sample bag's frames")
     p.add_argument("--frames", type=whole(2), default=16, help="frames of the sample bag used with --pipeline")

@@ -112,13 +112,27 @@ def gaps(text: str) -> tuple[int, ...]:
     return out
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """``--help`` that shows each option's default where it has one (not for flags and options without one), unless
+    its help already says it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (default is None or default is False or default == argparse.SUPPRESS or not action.option_strings
+                or "default" in text or "%(default)" in text):
+            return text
+        shown = ",".join(str(v) for v in default) if isinstance(default, (list, tuple)) else "%(default)s"
+        return f"{text} (default: {shown})"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Parser with every subcommand's options (modules imported lazily per subcommand)."""
     parser = argparse.ArgumentParser(prog="nmnet", description="NM-Net visual-odometry front end: tools.")
     parser.add_argument("--version", action="version", version=version())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in SUBCOMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=HelpFormatter)
         p.set_defaults(_module=module)
         if name in sys.argv[1:2]:  # only import the chosen tool's module
             importlib.import_module(module).add_arguments(p)
@@ -154,3 +168,22 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def node_value(name: str) -> Callable[[str], object]:
+    """An argparse type for an option that sets node parameter ``name``: the node's own type and range check, so a
+    value the node would refuse stops the command there, naming the option (argparse adds it) and the range."""
+    from ..interface.params import PARAMS, check_value  # here: the parameters' module loads the detectors
+
+    kind = type(PARAMS[name][0])
+
+    def parse(text: str) -> object:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if (why := check_value(name, value)) is not None:
+            raise argparse.ArgumentTypeError(why)
+        return value
+
+    return parse

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..core.bf16 import PRECISIONS
 from ..core.detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
+from ..core.features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from ..core.geometry import pose_auc, pose_error_deg
 from ..core.metrics import prf
 from ..core.model import NEIGHBORS, load_model
@@ -30,7 +31,7 @@ from ..io.datasets import FOLDERS_READ
 from ..io.outputs import output_file, save_figure, write_json
 from ..io.pairs import PairData, load_pairs, parse_seq_spec, shared_frames, spec_label, to_correspondences
 from ..io.progress import progress
-from .cli import file_path, gaps, whole
+from .cli import file_path, gaps, node_value, whole
 
 
 def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
@@ -179,6 +180,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),
                    help="local feature frames (default: the node's)")
+    p.add_argument("--max-keypoints", type=node_value("max_keypoints"), default=FEATURE_DEFAULTS["max_keypoints"],
+                   help="keypoints per frame (the node's max_keypoints)")
     p.add_argument("--threshold-px", type=float, default=SELECTOR_DEFAULTS["threshold_px"],
                    help="MAGSAC++/RANSAC inlier threshold in pixels for every robust method")
     p.add_argument("--score-threshold", type=float, default=None,
@@ -227,7 +230,7 @@ def main(args: argparse.Namespace) -> int:
             flag, other = ("--weights", "--weights-sp") if variant == "nmnet" else ("--weights-sp", "--weights")
             raise ValueError(f"{flag} {path}: trained with {kind} neighbours, the other variant's network; "
                              f"give it as {other}")
-    cache = FeatureCache(make_detector(args.detector), args.cache)
+    cache = FeatureCache(make_detector(args.detector, {"max_keypoints": args.max_keypoints}), args.cache)
     for i, spec in enumerate(args.seqs):  # a folder given twice, or ranges that meet: its pairs would weigh double
         if shared := shared_frames([spec], args.seqs[i + 1:], at_least=2):  # one frame shared: no pair in both
             print(f"warning: {spec} and a later folder argument share frames ({'; '.join(shared)}): the pairs within "

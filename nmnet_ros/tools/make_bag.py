@@ -160,7 +160,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet make-bag``."""
     p.add_argument("seq", metavar="SEQ_DIR[:a-b]", help=f"sequence folder (optional frame range): {FOLDERS_READ}")
     p.add_argument("out", type=Path, help="output: ROS 2 bag directory (mcap, sqlite3) or .bag file (ros1)")
-    p.add_argument("--format", choices=FORMATS, default="mcap")
+    p.add_argument("--format", choices=FORMATS, default="mcap", help="mcap or sqlite3: a ROS 2 bag folder; ros1: a .bag file")
     p.add_argument("--compressed", action="store_true", help="sensor_msgs/CompressedImage instead of Image: JPEG, PNG for 16-bit frames")
 
 

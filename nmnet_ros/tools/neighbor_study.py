@@ -12,12 +12,13 @@ from pathlib import Path
 import numpy as np
 
 from ..core.detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
+from ..core.features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from ..core.neighbors import compatibility_neighbors, spatial_neighbors
 from ..io.cache import FeatureCache
 from ..io.datasets import FOLDERS_READ
 from ..io.outputs import output_file, write_json
 from ..io.pairs import PairData, load_pairs, parse_seq_spec
-from .cli import file_path, gaps, whole
+from .cli import file_path, gaps, node_value, whole
 
 BUCKETS = ((0, 20), (20, 35), (35, 50), (50, 101))
 
@@ -58,17 +59,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help=f"sequence folders (optional frame range): {FOLDERS_READ}")
     p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,2")
     p.add_argument("--stride", type=whole(1), default=10, help="use every n-th frame as a pair's first frame")
-    p.add_argument("--k", type=whole(1), default=8)
+    p.add_argument("--k", type=whole(1), default=8, help="neighbours per correspondence (the network's k)")
     p.add_argument("--json", type=file_path, default=None, help="write the rows and table as JSON")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
     p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),
                    help="local feature frames (default: the node's)")
+    p.add_argument("--max-keypoints", type=node_value("max_keypoints"), default=FEATURE_DEFAULTS["max_keypoints"],
+                   help="keypoints per frame (the node's max_keypoints)")
 
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet neighbors``."""
     output_file(args.json, "--json", "neighbors.json", [parse_seq_spec(s)[0] for s in args.seqs])
-    cache = FeatureCache(make_detector(args.detector), args.cache)
+    cache = FeatureCache(make_detector(args.detector, {"max_keypoints": args.max_keypoints}), args.cache)
     pairs = load_pairs(args.seqs, args.gaps, cache, stride=args.stride, tool="neighbors")  # eval's pairs, notes, reasons
     res = study(pairs, args.k)
     print("| pair inlier ratio | pairs | compatibility nbrs inlier % | spatial kNN inlier % |")

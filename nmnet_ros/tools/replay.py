@@ -27,13 +27,13 @@ from ..core.planes import NOTE as PLANE_NOTE
 from ..core.tracks import TrackLengths
 from ..interface.caminfo import fit_camera
 from ..interface.imgconv import MAX_PIXELS
-from ..interface.params import PARAMS, SELECTORS, check_value, frontend_config, pose_sigmas, read_params_file
+from ..interface.params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
 from ..io.bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from ..io.datasets import read_camera_yaml
 from ..io.mcap_out import McapOutput
 from ..io.outputs import not_a_folder, not_an_input, not_someone_elses, output_file, output_folder, save_figure, save_image, write_json
 from ..io.trajectory import Trajectory, parse_pose, read_tum
-from .cli import bounded, file_path
+from .cli import bounded, file_path, node_value
 from .scoring import PairScores, truth_missed, window_missed
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
@@ -314,8 +314,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", type=file_path, default=None, help="write the summary as JSON")
     p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots, named errors.png, trajectory.png, "
                    "matches.png (default: --out's folder, named after it: OUT_errors.png, ...)")
-    p.add_argument("--image-topic", default=None)
-    p.add_argument("--info-topic", default=None)
+    p.add_argument("--image-topic", default=None, help="the frames' topic (default: the bag's only image topic, the raw "
+                   "one of a camera's transports)")
+    p.add_argument("--info-topic", default=None, help="the camera_info topic (default: the one beside the image topic)")
     p.add_argument("--gt-topic", default=None, help="the ground-truth topic (a pose, odometry or transform message; "
                    "with --gt-tf, the TFMessage topic, default /tf)")
     p.add_argument("--gt-tf", type=gt_frames, default=None, metavar="PARENT[:CHILD]",
@@ -356,7 +357,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="NM-Net arithmetic (the node's nmnet_precision; default auto: bfloat16 where the CPU has it natively)")
     p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
     p.add_argument("--baseline", action="store_true", help="also run SIFT + ratio + MAGSAC++ on the same frames and print both")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (there is none when stderr is no terminal)")
     p.add_argument("--live", action="store_true", help="play the bag onto ROS 2 topics into the node (own process) and record it")
     p.add_argument("--rate", type=playback_rate, default=1.0, help="live mode: playback speed factor")
 
@@ -391,23 +392,6 @@ def gt_camera(text: str) -> np.ndarray:
         return parse_pose(text)
     except ValueError as e:
         raise argparse.ArgumentTypeError(str(e)) from e
-
-
-def node_value(name: str) -> Callable[[str], object]:
-    """An argparse type for an option that sets node parameter ``name``: the node's own type and range check, so a
-    value the node would refuse stops the command there, naming the option (argparse adds it) and the range."""
-    kind = type(PARAMS[name][0])
-
-    def parse(text: str) -> object:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
-        if (why := check_value(name, value)) is not None:
-            raise argparse.ArgumentTypeError(why)
-        return value
-
-    return parse
 
 
 playback_rate = bounded(float, 0.0, "a speed factor > 0 (1 = as recorded, 0.5 = half speed)", strict=True)  # --rate

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from ..core.detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
+from ..core.features import DEFAULT_CONFIG as FEATURE_DEFAULTS
 from ..core.geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
 from ..core.metrics import prf
 from ..core.model import NEIGHBORS, NMNet, WeightsError, load_model, network_input
@@ -36,7 +37,7 @@ from ..io.cache import FeatureCache
 from ..io.datasets import FOLDERS_READ, LABEL_THRESHOLD, Sequence, pose_labels
 from ..io.outputs import output_folder, write_json, written_by
 from ..io.pairs import PairData, load_pairs, parse_seq_spec, shared_frames
-from .cli import gaps, whole
+from .cli import gaps, node_value, whole
 
 DEFAULT_CONFIG: dict = {
     "variant": "nmnet",  # or "nmnet-sp"
@@ -52,6 +53,7 @@ DEFAULT_CONFIG: dict = {
     "device": "cpu",  # "cuda" trains on a GPU; neighbours are always mined on the CPU
     "workers": 1,  # threads preparing a batch (neighbour mining releases the GIL)
     "detector": DEFAULT_DETECTOR,  # local feature frames: the node's (the shipped steps 0-2 used "hessian-affine")
+    "max_keypoints": FEATURE_DEFAULTS["max_keypoints"],  # keypoints per frame: the node's max_keypoints
     "label_threshold": LABEL_THRESHOLD,  # inlier when the squared symmetric epipolar distance is below (paper: 1e-4)
     "init": None,  # checkpoint to start from (fine-tuning); None = random initialisation
     "augment": False,  # label-preserving pair augmentation (see ``draw_augmentation``)
@@ -445,7 +447,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
                                f"it was started with (--ratio-input or not): {str(e).splitlines()[0]}") from e
     inputs = [parse_seq_spec(s)[0] for s in (*train_specs, *val_specs)] + [c["init"] and Path(c["init"])]
     output_folder(out_dir, "--out", "the checkpoints", inputs, ("history.json", "summary.json"))  # before minutes of features
-    cache = FeatureCache(make_detector(c["detector"]), cache_dir)
+    cache = FeatureCache(make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]}), cache_dir)
     log("loading training pairs")
     groups = [_labelled_pairs([spec], cache, c, log) for spec in train_specs]
     train_pairs = [p for g in groups for p in g]
@@ -526,16 +528,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"training sequence folders (optional frame range): {FOLDERS_READ}")
     p.add_argument("--val", nargs="+", required=True, metavar="SEQ[:a-b]", help="validation sequence folders")
     p.add_argument("--out", type=Path, required=True, help="output folder for checkpoints")
-    p.add_argument("--variant", choices=sorted(NEIGHBORS), default=DEFAULT_CONFIG["variant"])
-    for key in ("epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs"):
-        p.add_argument("--" + key.replace("_", "-"), type=whole(0 if key == "seed" else 1), default=DEFAULT_CONFIG[key])
-    p.add_argument("--lr", type=float, default=DEFAULT_CONFIG["lr"])
+    p.add_argument("--variant", choices=sorted(NEIGHBORS), default=DEFAULT_CONFIG["variant"],
+                   help="nmnet: compatibility neighbours (the paper's, shipped); nmnet-sp: spatial neighbours")
+    for key, what in (("epochs", "passes of --steps-per-epoch batches, each followed by validation"),
+                      ("steps_per_epoch", "optimiser steps per epoch"), ("batch", "pairs per step"),
+                      ("num_corr", "correspondences drawn per training pair"), ("seed", "random seed (same seed, same run)"),
+                      ("max_val_pairs", "validation pairs used at most (evenly spaced)")):
+        p.add_argument("--" + key.replace("_", "-"), type=whole(0 if key == "seed" else 1), default=DEFAULT_CONFIG[key],
+                       help=what)
+    p.add_argument("--lr", type=float, default=DEFAULT_CONFIG["lr"], help="Adam's learning rate")
     p.add_argument("--device", default=DEFAULT_CONFIG["device"], help="torch device for the network, e.g. cpu or cuda")
     p.add_argument("--workers", type=int, default=DEFAULT_CONFIG["workers"], help="threads mining neighbours for a batch")
     p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--detector", default=DEFAULT_CONFIG["detector"], choices=sorted(DETECTORS),
                    help="local feature frames to train on (default: the node's; use the one your node runs)")
+    p.add_argument("--max-keypoints", type=node_value("max_keypoints"), default=DEFAULT_CONFIG["max_keypoints"],
+                   help="keypoints per frame (the node's max_keypoints: train at the count the node runs)")
     p.add_argument("--label-threshold", type=float, default=DEFAULT_CONFIG["label_threshold"],
                    help="inlier label: squared symmetric epipolar distance below this, normalised coordinates")
     p.add_argument("--init", type=Path, default=None, help="checkpoint to start from (fine-tuning)")
@@ -560,7 +569,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet train``."""
     keys = ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr", "device", "workers",
-            "detector", "label_threshold", "augment", "thin_inliers", "turn_deg", "balance", "ratio_input", "ess_loss")
+            "detector", "max_keypoints", "label_threshold", "augment", "thin_inliers", "turn_deg", "balance", "ratio_input", "ess_loss")
     cfg = {k: getattr(args, k) for k in keys}
     cfg["init"] = str(args.init) if args.init else None
     cfg["gaps"] = args.gaps
