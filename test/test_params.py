@@ -77,6 +77,17 @@ def test_a_live_replay_hands_the_node_the_file_then_the_options_given():
     assert live_node_args(p.parse_args(["bag", "--out", "o.mcap"])) == []
 
 
+def test_replay_names_a_node_setting_as_the_node_does():
+    """The node's pose_estimator was only reachable as --selector with eval's names, nmnet_precision as --precision."""
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    args = p.parse_args(["bag", "--out", "o.mcap", "--pose-estimator", "classic", "--nmnet-precision", "float32"])
+    assert live_node_args(args) == ["-p", "nmnet_precision:=float32", "-p", "pose_estimator:=classic"]
+    assert p.parse_args(["bag", "--out", "o.mcap", "--precision", "float32"]).precision == "float32"  # the former name
+    with pytest.raises(SystemExit):
+        p.parse_args(["bag", "--out", "o.mcap", "--pose-estimator", "ratio+magsac"])  # eval's name is not the node's
+
+
 def test_which_parameters_file_sections_reach_a_node_as_rcl_matches_them():
     """Checked against rcl on 2026-12-04 (rclpy 9.1.2, a node /front/nmnet_node and /nmnet_node): the same verdicts."""
     from nmnet_ros.interface.params import file_sections, not_parameters, section_applies

@@ -194,7 +194,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="runs of every MAGSAC++/RANSAC method per pair, each with other random samples (metrics: the mean)")
     p.add_argument("--refine-iterations", type=int, default=SELECTOR_DEFAULTS["refine_iterations"],
                    help="robust pose polish after every MAGSAC++/RANSAC fit (0 = the plain OpenCV estimate)")
-    p.add_argument("--precision", default=SELECTOR_DEFAULTS["precision"], choices=PRECISIONS,
+    p.add_argument("--nmnet-precision", "--precision", dest="precision", default=SELECTOR_DEFAULTS["precision"], choices=PRECISIONS,
                    help="NM-Net arithmetic (default: the node's auto, bfloat16 where the CPU has it natively)")
 
 

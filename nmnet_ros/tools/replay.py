@@ -12,7 +12,6 @@ import argparse
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,19 +21,19 @@ from ..core.debug_view import draw_matches
 from ..core.detectors import DETECTORS
 from ..core.geometry import Camera, CameraError
 from ..core.model import load_model
-from ..core.pipeline import RESTARTS, FrameResult, Frontend, stamp_order, stamp_warning
+from ..core.pipeline import Frontend, stamp_order, stamp_warning
 from ..core.planes import NOTE as PLANE_NOTE
-from ..core.tracks import TrackLengths
 from ..interface.caminfo import fit_camera
 from ..interface.imgconv import MAX_PIXELS
 from ..interface.params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
 from ..io.bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from ..io.datasets import read_camera_yaml
 from ..io.mcap_out import McapOutput
-from ..io.outputs import not_a_folder, not_an_input, not_someone_elses, output_file, output_folder, save_figure, save_image, write_json
+from ..io.outputs import not_a_folder, not_an_input, not_someone_elses, output_file, output_folder, write_json
 from ..io.trajectory import Trajectory, parse_pose, read_tum
 from .cli import bounded, file_path, node_value
-from .scoring import PairScores, truth_missed, window_missed
+from .report import PLOTS, print_scores, print_summary, print_tracks, write_plots
+from .scoring import Run, truth_missed, window_missed
 
 BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
 
@@ -59,53 +58,6 @@ class Notes:
         for kind, n in self.counts.items():
             if n > self.shown:
                 self.log(f"{kind}: {n} frames in all")
-
-
-@dataclass
-class Step:
-    """What a pass keeps of a frame: its counts and pose, not its matches (58 KB a frame at 2000 keypoints: an
-    hour-long bag's would fill the memory; they are in the output file)."""
-
-    stamp: float
-    status: str
-    matches: int
-    selected: int
-    R: np.ndarray | None  # the pose, x_cur = R x_prev + t, where the frame has one
-    t: np.ndarray | None
-    T: np.ndarray | None  # the ground truth's camera pose at the frame's stamp, where it has one
-
-
-class Run:
-    """Everything one pass over the frames collects, a few hundred bytes a frame."""
-
-    def __init__(self, name: str) -> None:
-        self.name = name
-        self.warnings: dict[str, int] = {}  # per kind, as :class:`Notes` counted them
-        self.steps: list[Step] = []
-        self.scores = PairScores()
-        self.tracks = TrackLengths()
-        self.seconds = 0.0
-
-    def add(self, r: FrameResult, T: np.ndarray | None) -> None:
-        """One more frame's result ``r``, with the ground truth's pose ``T`` at its stamp (None: none there)."""
-        self.scores.add(r.status, r.pose, self.steps[-1].T if self.steps else None, T, r.stamp)
-        self.tracks.add(r.track_ids[r.mask])
-        R, t = (r.pose.R, r.pose.t) if r.pose else (None, None)
-        self.steps.append(Step(r.stamp, r.status, len(r.k0), r.num_selected, R, t, T))
-
-    def summary(self, frames: int, dropped: int = 0) -> dict:
-        """The summary JSON: counts, rate, median errors, pose AUCs, selections per frame, statuses."""
-        related = [s for s in self.steps if s.status not in RESTARTS]
-        statuses: dict[str, int] = {}
-        for s in self.steps:
-            statuses[s.status] = statuses.get(s.status, 0) + 1
-        return {
-            "frames": frames, "processed": len(self.steps), "dropped": dropped,
-            "fps": len(self.steps) / self.seconds if self.seconds else 0.0, **self.scores.summary(),
-            "matches_per_frame": float(np.mean([s.matches for s in related])) if related else 0.0,
-            "selected_per_frame": float(np.mean([s.selected for s in related])) if related else 0.0,
-            "status": statuses, "warnings": dict(self.warnings), "tracks": self.tracks.summary(),
-        }
 
 
 class _Gate:
@@ -208,99 +160,6 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     return run, n_frames, overlay
 
 
-def chain_trajectory(run: Run) -> tuple[np.ndarray, np.ndarray]:
-    """Estimated and ground-truth camera positions; each estimated step scaled to the GT step length."""
-    est, gt, T_est, T_gt_prev = [], [], None, None
-    for s in run.steps:
-        if (T := s.T) is None:
-            continue
-        if T_est is None:
-            T_est = T.copy()
-        else:
-            step = np.eye(4)
-            if s.R is not None and s.status in ("ok", "no_motion"):  # no_motion: the rotation, t = 0
-                scale = np.linalg.norm((np.linalg.inv(T_gt_prev) @ T)[:3, 3])
-                step[:3, :3] = s.R.T  # T_prev_cur = inv([R | t])
-                step[:3, 3] = -s.R.T @ s.t * scale
-            T_est = T_est @ step
-        T_gt_prev = T
-        est.append(T_est[:3, 3].copy())
-        gt.append(T[:3, 3].copy())
-    return np.array(est), np.array(gt)
-
-
-PLOTS = ("errors", "trajectory", "matches")  # the plots' names, each a .png
-
-
-def write_plots(runs: list[Run], overlay: np.ndarray | None, out_dir: Path, prefix: str = "") -> list[Path]:
-    """Per-frame errors and trajectory (top view) where ground truth scored any pair, and the match overlay,
-    as ``out_dir/<prefix>errors.png``, ``trajectory.png`` and ``matches.png``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    paths = []
-    scored = [run for run in runs if run.scores.errors]
-    if scored:  # without ground truth there is nothing to draw: no empty figures
-        fig, ax = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
-        for run in scored:
-            e = np.array(run.scores.errors)
-            ax[0].plot(run.scores.stamps, e[:, 0], ".-", label=run.name)
-            ax[1].plot(run.scores.stamps, e[:, 1], ".-", label=run.name)
-        ax[0].set_ylabel("rotation error (deg)")
-        ax[1].set_ylabel("translation dir. error (deg)")
-        ax[1].set_xlabel("time (s)")
-        for a in ax:
-            a.grid(alpha=0.3)
-            a.legend(fontsize=8)
-        paths.append(save_figure(fig, out_dir / f"{prefix}errors.png"))
-
-    chains = [(run, *chain_trajectory(run)) for run in runs]
-    chains = [(run, est, gt) for run, est, gt in chains if len(gt) > 1]  # a path: two positions or more
-    if chains:
-        fig, ax = plt.subplots(figsize=(6, 5))
-        gt = chains[0][2]
-        ax.plot(gt[:, 0], gt[:, 2], "k-", lw=2, label="ground truth")
-        for run, est, _ in chains:
-            ax.plot(est[:, 0], est[:, 2], ".-", label=f"{run.name} (scale from GT)")
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("z (m)")
-        ax.axis("equal")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        paths.append(save_figure(fig, out_dir / f"{prefix}trajectory.png"))
-    if overlay is not None:
-        paths.append(save_image(out_dir / f"{prefix}matches.png", overlay))
-    return paths
-
-
-def print_summary(s: dict, name: str) -> None:
-    """Human-readable summary of one run."""
-    line = f"{name}: {s['processed']}/{s['frames']} frames at {s['fps']:.2f} fps, {s['matches_per_frame']:.0f} matches and " \
-           f"{s['selected_per_frame']:.0f} selected per frame"
-    print(line)
-    print_tracks(s["tracks"])
-    print_scores(s)
-
-
-def print_tracks(t: dict) -> None:
-    """The summary's feature tracks (``~/matches``' track_id), offline and live alike."""
-    if t["count"]:
-        print(f"   tracks: {t['count']}, seen in {t['mean_frames']:.1f} frames on average, {t['share_5_frames']:.1f} % in 5 "
-              f"or more, the longest in {t['longest']}")
-
-
-def print_scores(s: dict) -> None:
-    """The summary's errors against ground truth (offline and live alike), when any pair was scored."""
-    if s["median_rot_deg"] is not None:
-        print(f"   vs ground truth ({s['scored_pairs']} pairs): median rotation error {s['median_rot_deg']:.3f} deg, translation "
-              f"{s['median_trans_deg']:.2f} deg, AUC@5/10/20 {s['auc5']:.1f} / {s['auc10']:.1f} / {s['auc20']:.1f}")
-    if s["still_pairs"]:
-        print(f"   without motion in the ground truth ({s['still_pairs']} pairs: standing, or turning on the spot): "
-              f"median rotation error {s['median_still_rot_deg']:.3f} deg")
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet replay``."""
     p.add_argument("bag", type=Path, help=".bag, .db3 or .mcap file, a ROS 2 bag directory, or a folder of a ROS 1 "
@@ -341,8 +200,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params-file", type=Path, default=None, metavar="YAML",
                    help="the node's parameters file (config/nmnet.yaml's form): replay with the settings the node runs; "
                         "the options below, when given, override it")
-    p.add_argument("--selector", default=None, help="correspondence selector (see nmnet eval; default: the node's "
-                   "pose_estimator, nmnet+ratio+magsac; with --live one the node runs, as its pose_estimator)")
+    p.add_argument("--pose-estimator", default=None, choices=tuple(SELECTORS),
+                   help="the node's pose_estimator (default: ratio_magsac; classic runs without the network)")
+    p.add_argument("--selector", default=None, help="instead of --pose-estimator, any of nmnet eval's methods (offline "
+                   "only, unless it is one the node runs)")
     p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (the node's weights; default: shipped)")
     p.add_argument("--detector", default=None, choices=sorted(DETECTORS), help="local feature frames (default: hessian-affine-fast)")
     p.add_argument("--max-keypoints", type=node_value("max_keypoints"), default=None,
@@ -353,7 +214,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--matches-within-px", type=node_value("matches_within_px"), default=None, metavar="PX",
                    help="record every match within this Sampson distance of the pose, not only its inliers (the "
                    "node's matches_within_px; default 0: the inliers)")
-    p.add_argument("--precision", default=None, choices=PRECISIONS,
+    p.add_argument("--nmnet-precision", "--precision", dest="precision", default=None, choices=PRECISIONS,
                    help="NM-Net arithmetic (the node's nmnet_precision; default auto: bfloat16 where the CPU has it natively)")
     p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
     p.add_argument("--baseline", action="store_true", help="also run SIFT + ratio + MAGSAC++ on the same frames and print both")
@@ -364,7 +225,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 FLAGS = {"weights": "weights", "detector": "detector", "max_keypoints": "max_keypoints", "resize_width": "resize_width",
          "matches_within_px": "matches_within_px", "precision": "nmnet_precision",
-         "stamp_source": "stamp_source"}  # replay option -> the node parameter it sets
+         "stamp_source": "stamp_source", "pose_estimator": "pose_estimator"}  # replay option -> the node parameter it sets
 
 
 NODE_ESTIMATORS = {selector: estimator for estimator, selector in SELECTORS.items()}  # selector -> pose_estimator
@@ -461,6 +322,9 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay``: offline through the front end here, or ``--live`` through the node."""
+    if args.selector is not None and args.pose_estimator is not None:
+        raise ValueError(f"--selector {args.selector} and --pose-estimator {args.pose_estimator} name the same setting: "
+                         "give one")
     reader = BagReader(args.bag)  # a missing or unreadable bag stops here
     plots_dir, plots_prefix = check_outputs(args, [reader.path, *reader.files, args.gt, args.camera, args.params_file,
                                                    args.weights])

@@ -1,12 +1,16 @@
 """Scoring a pass over a recording against its ground truth, pair by pair: what the offline replay and the live
-scoring report alike (rotation and translation-direction errors, pose AUC, pairs without motion)."""
+scoring report alike (rotation and translation-direction errors, pose AUC, pairs without motion), and what a pass
+keeps of each frame (:class:`Run`)."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..core.geometry import PoseEstimate, pose_auc, pose_error_deg, relative_pose, rotation_error_deg
-from ..core.pipeline import RESTARTS
+from ..core.pipeline import RESTARTS, FrameResult
+from ..core.tracks import TrackLengths
 from ..io.trajectory import Trajectory
 
 STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
@@ -97,3 +101,50 @@ def truth_missed(truth: Trajectory | None, stamps: list[float]) -> str | None:
     return (f"the ground truth has no pose at any frame's stamp (poses {truth.stamps[0]:.3f} .. "
             f"{truth.stamps[-1]:.3f} s, frames {min(stamps):.3f} .. {max(stamps):.3f} s): nothing is scored; the two "
             "must be stamped on the same clock")
+
+
+@dataclass
+class Step:
+    """What a pass keeps of a frame: its counts and pose, not its matches (58 KB a frame at 2000 keypoints: an
+    hour-long bag's would fill the memory; they are in the output file)."""
+
+    stamp: float
+    status: str
+    matches: int
+    selected: int
+    R: np.ndarray | None  # the pose, x_cur = R x_prev + t, where the frame has one
+    t: np.ndarray | None
+    T: np.ndarray | None  # the ground truth's camera pose at the frame's stamp, where it has one
+
+
+class Run:
+    """Everything one pass over the frames collects, a few hundred bytes a frame."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.warnings: dict[str, int] = {}  # per kind, as :class:`Notes` counted them
+        self.steps: list[Step] = []
+        self.scores = PairScores()
+        self.tracks = TrackLengths()
+        self.seconds = 0.0
+
+    def add(self, r: FrameResult, T: np.ndarray | None) -> None:
+        """One more frame's result ``r``, with the ground truth's pose ``T`` at its stamp (None: none there)."""
+        self.scores.add(r.status, r.pose, self.steps[-1].T if self.steps else None, T, r.stamp)
+        self.tracks.add(r.track_ids[r.mask])
+        R, t = (r.pose.R, r.pose.t) if r.pose else (None, None)
+        self.steps.append(Step(r.stamp, r.status, len(r.k0), r.num_selected, R, t, T))
+
+    def summary(self, frames: int, dropped: int = 0) -> dict:
+        """The summary JSON: counts, rate, median errors, pose AUCs, selections per frame, statuses."""
+        related = [s for s in self.steps if s.status not in RESTARTS]
+        statuses: dict[str, int] = {}
+        for s in self.steps:
+            statuses[s.status] = statuses.get(s.status, 0) + 1
+        return {
+            "frames": frames, "processed": len(self.steps), "dropped": dropped,
+            "fps": len(self.steps) / self.seconds if self.seconds else 0.0, **self.scores.summary(),
+            "matches_per_frame": float(np.mean([s.matches for s in related])) if related else 0.0,
+            "selected_per_frame": float(np.mean([s.selected for s in related])) if related else 0.0,
+            "status": statuses, "warnings": dict(self.warnings), "tracks": self.tracks.summary(),
+        }
