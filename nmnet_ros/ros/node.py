@@ -40,9 +40,9 @@ from std_srvs.srv import Trigger
 from ..core.debug_view import draw_matches
 from ..core.geometry import Camera, CameraError
 from ..core.model_fast import precision_note
-from ..core.pipeline import FrameResult, Frontend, Prepared, stamp_order, stamp_warning
+from ..core.pipeline import FrameResult, Frontend, Prepared
 from ..core.planes import NOTE as PLANE_NOTE
-from ..interface.caminfo import camera_from_info, fit_camera
+from ..interface.caminfo import camera_from_info
 from ..interface.dds import (
     DEPTH_ADVICE,
     LARGE_FRAME_BYTES,
@@ -53,6 +53,7 @@ from ..interface.dds import (
     silence_advice,
     where_are_the_images,
 )
+from ..interface.framecheck import FrameChecks
 from ..interface.imgconv import IMAGE_TYPES, ImageError, array_to_image_fields, decode_message, matches_to_cloud_fields, pixel_cap
 from ..interface.params import (
     NODE_NAME,
@@ -169,8 +170,7 @@ class NMNetNode(Node):
         self._slot: object | None = None
         self._cv = threading.Condition()
         self._running = True
-        self._last_stamp: float | None = None
-        self._size: tuple[int, int] | None = None
+        self._checks = FrameChecks()  # the stream's last stamp and size
         self._warned: dict[str, float] = {}
         self._reset_due = False  # ~/reset: stage 2 forgets the previous frame before the next one
 
@@ -437,11 +437,11 @@ class NMNetNode(Node):
             self._warn("no_camera_info", "no camera_info yet and no fx/fy/cx/cy parameters: frame skipped")
             return None
         stamp = stamp_seconds(msg.header.stamp)
-        kind = stamp_order(self._last_stamp, stamp, self.frontend.config["time_jump_s"])
-        if kind is not None:
-            self._warn(kind, stamp_warning(kind, self._last_stamp, stamp))
-            if kind != "time_jump":  # a jump back restarts the chain from this frame; the others are skipped
-                return None
+        go_on, said = self._checks.stamp(stamp, self.frontend.config["time_jump_s"])
+        if said is not None:
+            self._warn(said.kind, said.text)
+        if not go_on:
+            return None
         t = time.perf_counter()
         try:
             cam = self.camera
@@ -450,19 +450,9 @@ class NMNetNode(Node):
             self._warn("bad_image", f"bad image message skipped: {e}")
             return None
         t_dec = time.perf_counter()
-        size = (img.shape[1], img.shape[0])
-        if self._size is not None and size != self._size:
-            self._warn("size_changed", f"frame size changed {self._size[0]}x{self._size[1]} -> {size[0]}x{size[1]}: "
-                                       "restarting from this frame")
-        self._size = size
-        self._last_stamp = stamp
-        try:
-            cam, note = fit_camera(self.camera, size)
-        except CameraError as e:  # a calibration without a size (fx..cy parameters), implausible for these frames
-            self._warn("bad_camera_info", f"frame skipped: the calibration does not fit {size[0]}x{size[1]} frames: {e}")
-            return None
-        if note:
-            self._warn("camera_size_mismatch", note)
+        cam, said = self._checks.camera(self.camera, (img.shape[1], img.shape[0]), stamp)
+        for r in said:
+            self._warn(r.kind, r.text)
         if cam is None:
             return None
         self.frontend.camera = cam

@@ -19,11 +19,11 @@ import numpy as np
 from ..core.bf16 import PRECISIONS
 from ..core.debug_view import draw_matches
 from ..core.detectors import DETECTORS
-from ..core.geometry import Camera, CameraError
+from ..core.geometry import Camera
 from ..core.model import load_model
-from ..core.pipeline import Frontend, stamp_order, stamp_warning
+from ..core.pipeline import Frontend
 from ..core.planes import NOTE as PLANE_NOTE
-from ..interface.caminfo import fit_camera
+from ..interface.framecheck import FrameChecks
 from ..interface.imgconv import MAX_PIXELS
 from ..interface.params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
 from ..io.bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
@@ -67,7 +67,7 @@ class _Gate:
 
     def __init__(self, notes: Notes, camera: Camera | None, time_jump_s: float) -> None:
         self.notes, self.camera, self.time_jump_s = notes, camera, time_jump_s
-        self.last_stamp: float | None = None
+        self.checks = FrameChecks("--stamp-source arrival")  # the node's
         self.last_note: str | None = None
 
     def camera_for(self, f: Frame) -> Camera | None:
@@ -83,20 +83,18 @@ class _Gate:
                 self.notes("no_camera_info", f"frame at {f.stamp:.3f}: skipped, no camera_info yet (give the calibration "
                                              "with --camera)")
             return None
-        order = stamp_order(self.last_stamp, f.stamp, self.time_jump_s)
-        if order is not None:
-            self.notes(order, stamp_warning(order, self.last_stamp, f.stamp, "--stamp-source arrival") + " (as the node does)")
-            if order != "time_jump":  # a jump back restarts the chain from this frame; the others are skipped
-                return None
-        self.last_stamp = f.stamp
-        try:
-            cam, note = fit_camera(calibration, (f.image.shape[1], f.image.shape[0]))
-        except CameraError as e:  # a calibration without a size, implausible for these frames
-            self.notes("bad_camera_info", f"frame at {f.stamp:.3f}: skipped, the calibration does not fit it: {e}")
+        go_on, said = self.checks.stamp(f.stamp, self.time_jump_s)
+        if said is not None:
+            self.notes(said.kind, said.text + " (as the node does)")
+        if not go_on:
             return None
-        if note:  # said when it changes: a scaled K holds for every frame of the stream
-            self.notes("camera_size_mismatch", f"frame at {f.stamp:.3f}: {note}" if note != self.last_note else None)
-            self.last_note = note
+        cam, said = self.checks.camera(calibration, (f.image.shape[1], f.image.shape[0]), f.stamp)
+        for r in said:
+            if r.kind == "camera_size_mismatch":  # said when it changes: a scaled K holds for every frame of the stream
+                self.notes(r.kind, f"frame at {f.stamp:.3f}: {r.text}" if r.text != self.last_note else None)
+                self.last_note = r.text
+            else:
+                self.notes(r.kind, f"frame at {f.stamp:.3f}: {r.text}")
         return cam
 
 
