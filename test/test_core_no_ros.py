@@ -254,10 +254,11 @@ def test_a_demo_out_dir_that_is_a_file_is_named(tmp_path, capsys):
 
     afile = tmp_path / "afile"
     afile.write_text("a user's file")
-    for out, said in ((afile, f"--out-dir {afile} is a file: give a folder for the demo's outputs"),
-                      (afile / "sub", f"--out-dir {afile / 'sub'}: {afile} is a file, not a folder")):
-        assert main(["demo", "--out-dir", str(out)]) == 2
-        assert f"nmnet demo: error: {said}" in capsys.readouterr().err
+    for out, said in ((afile, f"--out {afile} is a file: give a folder for the demo's outputs"),
+                      (afile / "sub", f"--out {afile / 'sub'}: {afile} is a file, not a folder")):
+        for flag in ("--out", "--out-dir"):  # --out as train's; --out-dir, its former name, still works
+            assert main(["demo", flag, str(out)]) == 2
+            assert f"nmnet demo: error: {said}" in capsys.readouterr().err
     assert afile.read_text() == "a user's file"
 
 

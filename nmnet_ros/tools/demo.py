@@ -22,7 +22,8 @@ SAMPLE_BAG = Path(__file__).parents[1] / "sample" / "kitti07_120-159"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """CLI options of ``nmnet demo``."""
-    p.add_argument("--out-dir", type=Path, default=Path("nmnet_demo"), help="folder for the output .mcap, summary and plots")
+    p.add_argument("--out", "--out-dir", dest="out", type=Path, default=Path("nmnet_demo"),
+                   help="folder for the output .mcap, summary and plots (as train's --out)")
     p.add_argument("--bag", type=Path, default=SAMPLE_BAG, help="bag to replay (default: the bundled sample)")
     p.add_argument("--rate", type=replay.playback_rate, default=0.3,
                    help="live playback speed (x recorded 10 Hz); 0.3 lets a 2-core machine keep up at 2000 keypoints")
@@ -41,8 +42,8 @@ def _without_ros() -> str | None:
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet demo``."""
-    out = args.out_dir
-    output_folder(out, "--out-dir", "the demo's outputs", [args.bag])
+    out = args.out
+    output_folder(out, "--out", "the demo's outputs", [args.bag])
     out.mkdir(parents=True, exist_ok=True)
     parser = argparse.ArgumentParser()
     replay.add_arguments(parser)  # the demo is exactly these two replay commands
