@@ -252,3 +252,18 @@ def test_replay_skips_frames_over_the_pixel_cap_and_with_invalid_stamps(tmp_path
     assert r.returncode == 0, r.stderr
     s = json.loads((tmp_path / "s.json").read_text())
     assert s["warnings"] == {"bad_image": 1, "invalid_stamp": 1} and s["processed"] == 2, s
+
+
+def test_a_training_folder_with_a_users_file_of_trains_names_is_refused_and_checkpoints_are_marked(tmp_path):
+    """train writes history.json and summary.json into --out: a user's file of that name is refused before any work;
+    a checkpoint nmnet wrote carries its mark, another .pt does not."""
+    import torch
+
+    from nmnet_ros.io.outputs import output_folder, written_by
+
+    (tmp_path / "history.json").write_text('{"mine": 1}\n')
+    with pytest.raises(FileExistsError, match="history.json exists and was not written by nmnet"):
+        output_folder(tmp_path, "--out", "the checkpoints", (), ("history.json", "summary.json"))
+    torch.save({"state_dict": {}, "written_by": written_by()}, tmp_path / "ours.pt")
+    torch.save({"state_dict": {}}, tmp_path / "theirs.pt")
+    assert written_here(tmp_path / "ours.pt") and not written_here(tmp_path / "theirs.pt")
