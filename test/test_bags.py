@@ -27,7 +27,7 @@ from nmnet_ros.io.bags import (
     tf_ground_truth,
     typestore,
 )
-from nmnet_ros.tools.demo import SAMPLE_BAG
+from nmnet_ros.tools.options import SAMPLE_BAG
 from nmnet_ros.tools.make_bag import make_bag
 
 from .conftest import ROOT, data_dir, planar_views
@@ -930,7 +930,7 @@ def test_replay_options_that_set_node_parameters_are_checked_as_the_node_checks_
 def test_the_oracle_selector_is_refused_by_replay_as_it_needs_ground_truth_labels(raw_bag, tmp_path):
     """On a bag's frames the oracle has no labels: it selected nothing and reported every pose as 180 degrees off."""
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "o.mcap"), "--selector", "oracle")
-    assert r.returncode == 2 and "selector 'oracle' needs each match's ground-truth label" in r.stderr, r.stderr
+    assert r.returncode == 2 and "pose_estimator 'oracle' needs each match's ground-truth label" in r.stderr, r.stderr
     assert not (tmp_path / "o.mcap").exists()
 
 
@@ -1674,7 +1674,7 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     assert r.returncode == 0, r.stderr
     s = json.loads((tmp_path / "b.json").read_text())
     assert 300 < s["matches_per_frame"] <= 600 and s["parameters"]["max_keypoints"] == 600
-    assert s["selector"] == "ratio+magsac" and s["parameters"]["pose_estimator"] == "classic"  # the node's name for it
+    assert s["parameters"]["pose_estimator"] == "classic"  # the node's name for --selector (former name) ratio+magsac
     from rosbags.highlevel import AnyReader
 
     from nmnet_ros.interface.posemsg import NO_ESTIMATE_VAR
@@ -1695,5 +1695,5 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
         assert r.returncode == 2 and f"{missing}: weights file not found" in r.stderr, (mode, r.stderr)
         assert not (tmp_path / "d.mcap").exists(), mode
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "e.mcap"), "--selector", "gms", "--live")  # not a node's
-    assert r.returncode == 2 and "--selector gms: the node runs nmnet, nmnet+magsac, " in r.stderr, r.stderr
+    assert r.returncode == 2 and "--pose-estimator gms: the node runs ratio_magsac, magsac, weighted8, classic" in r.stderr, r.stderr
     assert not (tmp_path / "e.mcap").exists()

@@ -5,7 +5,7 @@ import pytest
 from nmnet_ros.core.bf16 import native_bf16
 from nmnet_ros.io.bags import BagReader, read_frames
 from nmnet_ros.tools.bench import bench_pipeline
-from nmnet_ros.tools.demo import SAMPLE_BAG
+from nmnet_ros.tools.options import SAMPLE_BAG
 
 
 @pytest.mark.slow

@@ -49,7 +49,7 @@ def test_cli_without_a_command_fails_naming_the_commands():
     (["eval", "d", "--gaps", "3-1"], "--gaps", "'3-1': expected frame gaps >= 1"),  # was "no pairs ... to evaluate"
     (["train", "--train", "d", "--val", "d", "--out", "o", "--epochs", "0"], "--epochs", "'0': expected a whole number >= 1"),
     (["train", "--train", "d", "--val", "d", "--out", "o", "--seed", "x"], "--seed", "'x': expected a whole number >= 0"),
-    (["neighbors", "d", "--k", "0"], "--k", "'0': expected a whole number >= 1"),
+    (["neighbors", "d", "--k", "0"], "--k", "k: 0 is out of range 2 .. 16"),
     (["bench", "--repeat", "0"], "--repeat", "'0': expected a whole number >= 1"),
     (["bench", "--sizes", "abc"], "--sizes", "'abc': expected correspondence counts >= 1"),  # was "invalid literal"
     (["bench", "--sizes", "1000,0"], "--sizes", "'1000,0': expected correspondence counts >= 1"),  # was a row of 0s
@@ -76,7 +76,7 @@ def test_the_number_types_take_what_they_should_and_nothing_else():
     """cli.gaps' two forms; cli.bounded's bound (inclusive, or strict as --rate's) and its refusal of NaN and inf."""
     import argparse
 
-    from nmnet_ros.tools.cli import bounded, gaps, whole
+    from nmnet_ros.tools.options import bounded, gaps, whole
 
     assert gaps("1-3") == (1, 2, 3) and gaps("1,5") == (1, 5) and gaps("4") == (4,)
     assert whole(0)("0") == 0 and bounded(float, 0.0, "seconds")("0") == 0.0
@@ -98,7 +98,7 @@ def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
     """nmnet_node (the console script or `python -m nmnet_ros.node`) and `nmnet replay --live` stop with one line
     naming the package and the two ways to get it (exit code 2, no traceback); the live replay stops before it makes
     its output file."""
-    from nmnet_ros.tools.demo import SAMPLE_BAG
+    from nmnet_ros.tools.options import SAMPLE_BAG
 
     node = _without_ros("from nmnet_ros.ros.entry import node_main\nsys.exit(node_main(['nmnet_node']))", tmp_path)
     module = _without_ros("import runpy\nsys.argv = ['node.py']\nrunpy.run_module('nmnet_ros.node', run_name='__main__')",
@@ -115,7 +115,7 @@ def test_without_ros_the_node_and_live_replay_say_what_is_missing(tmp_path):
 def test_live_replay_names_a_missing_message_package_the_node_needs(tmp_path):
     """A ROS install with rclpy but without std_srvs (the node's ~/reset): `nmnet replay --live` names the package
     before it starts the node or makes its output file (the node would exit before subscribing)."""
-    from nmnet_ros.tools.demo import SAMPLE_BAG
+    from nmnet_ros.tools.options import SAMPLE_BAG
 
     live = _without_ros(f"from nmnet_ros.tools.cli import main\nsys.exit(main(['replay', {str(SAMPLE_BAG)!r}, '--live', "
                         "'--out', 'live.mcap']))", tmp_path, blocked="['std_srvs']")
@@ -280,13 +280,13 @@ def test_a_replay_into_an_existing_folder_or_a_file_without_mcap_suffix_is_refus
 def test_every_option_of_every_tool_says_what_it_does_and_its_default():
     """Several options had no help text, and no --help showed a default."""
     import argparse
-    import importlib
 
-    from nmnet_ros.tools.cli import SUBCOMMANDS, HelpFormatter
+    from nmnet_ros.tools.cli import SUBCOMMANDS
+    from nmnet_ros.tools.options import HelpFormatter
 
-    for name, (module, _) in SUBCOMMANDS.items():
+    for name, (_, add_options, _) in SUBCOMMANDS.items():
         p = argparse.ArgumentParser(prog=f"nmnet {name}", formatter_class=HelpFormatter)
-        importlib.import_module(module).add_arguments(p)
+        add_options(p)
         bare = [a.option_strings or a.dest for a in p._actions if not a.help and not isinstance(a, argparse._HelpAction)]
         assert not bare, (name, bare)
     out = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "train", "--help"], capture_output=True, text=True,

@@ -239,7 +239,7 @@ def test_empty_folder_names_missing_camera_yaml(tmp_path):
 def test_a_bag_given_to_eval_names_replay(tmp_path):
     """A bag (its file or its folder) given to eval or train said "not a directory" or "camera.yaml: missing"; it
     says it is a recording and names the tool that scores one."""
-    from nmnet_ros.tools.demo import SAMPLE_BAG
+    from nmnet_ros.tools.options import SAMPLE_BAG
 
     said = r"this is a recording \(a bag\), which nmnet replay scores against its ground truth \(`nmnet replay BAG"
     bag = next(SAMPLE_BAG.glob("*.mcap"))

@@ -8,7 +8,8 @@ import pytest
 
 from nmnet_ros.core.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
 from nmnet_ros.interface.params import PARAMS, ParamsFileError, check_value, frontend_config, read_params_file
-from nmnet_ros.tools.replay import add_arguments, live_node_args
+from nmnet_ros.tools.options import replay as add_arguments
+from nmnet_ros.tools.replay import live_node_args
 
 from .conftest import ROOT
 
@@ -36,7 +37,7 @@ def test_sections_for_the_node_apply_in_file_order_and_others_are_ignored(tmp_pa
     assert got == {**DEFAULTS, "max_keypoints": 700, "pose_estimator": "classic"}
     assert warnings == [f"{f}: 'max_keypoint' is not an nmnet_node parameter: ignored; did you mean 'max_keypoints'? "
                         "(the list: nmnet_node --help)"]  # as the node says it
-    assert frontend_config(got)["selector"] == "ratio+magsac"
+    assert frontend_config(got)["pose_estimator"] == "classic"
     # the forms the node takes in a namespace: nested, and a wildcard for the node's name (read as rcl reads them)
     for text in ("front:\n  nmnet_node:\n    ros__parameters:\n      k: 5\n", "/front/*:\n  ros__parameters:\n    k: 5\n"):
         f.write_text(text)
@@ -48,9 +49,9 @@ def test_sections_for_the_node_apply_in_file_order_and_others_are_ignored(tmp_pa
     ("a: [1, 2\n", "not valid YAML"),
     ("- 1\n- 2\n", "not a ROS 2 parameters file"),
     ("other_node:\n  ros__parameters:\n    k: 3\n", r"no ros__parameters for /\*\* or nmnet_node \(found: other_node\)"),
-    ("/**:\n  ros__parameters:\n    max_keypoints: lots\n", "max_keypoints: 'lots' is a string, the parameter an integer"),
-    ("/**:\n  ros__parameters:\n    score_threshold: 1\n", r"score_threshold: 1 is an integer, the parameter a float \(write 1.0\)"),
-    ("/**:\n  ros__parameters:\n    rectified: 1\n", "rectified: 1 is an integer, the parameter a bool"),
+    ("/**:\n  ros__parameters:\n    max_keypoints: lots\n", "max_keypoints: 'lots' is a string, the setting an integer"),
+    ("/**:\n  ros__parameters:\n    score_threshold: 1\n", r"score_threshold: 1 is an integer, the setting a float \(write 1.0\)"),
+    ("/**:\n  ros__parameters:\n    rectified: 1\n", "rectified: 1 is an integer, the setting a bool"),
     ("/**:\n  ros__parameters:\n    max_keypoints: 50\n", "max_keypoints: 50 is out of range 100 .. 8000"),
     ("/**:\n  ros__parameters:\n    pose_estimator: fancy\n", "pose_estimator: 'fancy' is not one of"),
     ("/front/nmnet_node:\n  ros__parameters:\n    k: 6\nrear/nmnet_node:\n  ros__parameters:\n    k: 4\n",
@@ -83,9 +84,11 @@ def test_replay_names_a_node_setting_as_the_node_does():
     add_arguments(p)
     args = p.parse_args(["bag", "--out", "o.mcap", "--pose-estimator", "classic", "--nmnet-precision", "float32"])
     assert live_node_args(args) == ["-p", "nmnet_precision:=float32", "-p", "pose_estimator:=classic"]
-    assert p.parse_args(["bag", "--out", "o.mcap", "--precision", "float32"]).precision == "float32"  # the former name
+    assert p.parse_args(["bag", "--out", "o.mcap", "--precision", "float32"]).nmnet_precision == "float32"  # former name
+    args = p.parse_args(["bag", "--out", "o.mcap", "--pose-estimator", "ratio+magsac"])  # eval's name for classic
+    assert live_node_args(args) == ["-p", "pose_estimator:=classic"]  # the node's name for it
     with pytest.raises(SystemExit):
-        p.parse_args(["bag", "--out", "o.mcap", "--pose-estimator", "ratio+magsac"])  # eval's name is not the node's
+        p.parse_args(["bag", "--out", "o.mcap", "--pose-estimator", "fancy"])
 
 
 def test_which_parameters_file_sections_reach_a_node_as_rcl_matches_them():
@@ -101,3 +104,35 @@ def test_which_parameters_file_sections_reach_a_node_as_rcl_matches_them():
     said = not_parameters(["max_keypoint", "k", "use_sim_time", "qos_overrides./image.subscription.depth", "zzz"])
     assert said == ["'max_keypoint' is not an nmnet_node parameter: ignored; did you mean 'max_keypoints'? "
                     "(the list: nmnet_node --help)", "'zzz' is not an nmnet_node parameter: ignored (the list: nmnet_node --help)"]
+
+
+def test_the_shipped_parameters_file_and_the_docs_table_are_made_from_the_settings():
+    """config/nmnet.yaml and docs/parameters.md are generated from core/settings.py: a setting added, renamed or
+    given another default there and not regenerated fails here (python -m nmnet_ros.interface.params yaml|markdown)."""
+    from nmnet_ros.interface.params import params_yaml, settings_table
+
+    assert (ROOT / "config" / "nmnet.yaml").read_text() == params_yaml()
+    assert (ROOT / "docs" / "parameters.md").read_text().endswith("<!-- settings table: generated -->\n" + settings_table())
+
+
+def test_a_setting_has_one_name_on_the_node_the_front_end_and_every_tool():
+    """The node's pose_estimator was the tools' --selector, nmnet_precision their --precision, pose_threshold_px eval's
+    --threshold-px, and the Frontend's keys were others again (selector, precision, threshold_px, mutual/ratio)."""
+    from nmnet_ros.core.bf16 import PRECISIONS
+    from nmnet_ros.core.detectors import DETECTORS
+    from nmnet_ros.core.pipeline import DEFAULT_CONFIG
+    from nmnet_ros.core.settings import BY_NAME, DETECTOR_NAMES, SETTINGS, for_tool
+    from nmnet_ros.tools.cli import SUBCOMMANDS
+
+    assert set(DETECTOR_NAMES) == set(DETECTORS) and PRECISIONS == BY_NAME["nmnet_precision"].choices
+    assert set(DEFAULT_CONFIG) == {s.name for s in SETTINGS if s.frontend}
+    assert set(PARAMS) == {s.name for s in SETTINGS if s.node}
+    for command, (_, add_options, _) in SUBCOMMANDS.items():
+        p = argparse.ArgumentParser()
+        add_options(p)
+        by_dest = {a.dest: a for a in p._actions}
+        for s in for_tool(command):
+            assert by_dest[s.name].option_strings[0] == s.option, (command, s.name)
+        for dest, action in by_dest.items():  # no option sets a setting under another name
+            names = {o.lstrip("-").replace("-", "_") for o in action.option_strings}
+            assert not (names & set(BY_NAME)) or dest in BY_NAME, (command, action.option_strings)

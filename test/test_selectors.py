@@ -76,13 +76,13 @@ def test_bfloat16_network_selects_what_float32_selects(pairs):
 def test_a_bad_precision_is_refused_by_every_method():
     for name in ("nmnet", "ratio+magsac"):
         with pytest.raises(ValueError, match="NM-Net precision 'float16'"):
-            build(name, {"precision": "float16"})
+            build(name, {"nmnet_precision": "float16"})
 
 
 def test_pixel_threshold_reaches_the_robust_estimator(pairs):
     """A looser MAGSAC++ threshold keeps more matches on the same putative set (and the config key is honoured)."""
     c = to_correspondences(pairs[0])
-    tight, loose = (int(build("magsac", {"threshold_px": t})(c).mask.sum()) for t in (0.1, 3.0))
+    tight, loose = (int(build("magsac", {"pose_threshold_px": t})(c).mask.sum()) for t in (0.1, 3.0))
     print(f"MAGSAC++ inliers at 0.1 px: {tight}, at 3 px: {loose}")
     assert 8 <= tight < loose
 
@@ -94,7 +94,7 @@ def test_frontend_passes_its_pixel_threshold_to_the_selector():
     seq = Sequence.load(data_dir("kitti-07"))
     selected = []
     for t in (0.1, 3.0):
-        fe = Frontend(seq.camera, {"selector": "ratio+magsac", "threshold_px": t})
+        fe = Frontend(seq.camera, {"pose_estimator": "classic", "pose_threshold_px": t})
         fe.process(seq.image(10), 0.0)
         r = fe.process(seq.image(11), 0.1)
         assert r.status == "ok"
@@ -109,8 +109,8 @@ def test_frontend_passes_its_refine_iterations_to_the_selector():
 
     seq = Sequence.load(data_dir("kitti-07"))
     results = []
-    for it in (0, DEFAULT_CONFIG["refine_iterations"]):
-        fe = Frontend(seq.camera, {"selector": "ratio+magsac", "refine_iterations": it})
+    for it in (0, DEFAULT_CONFIG["pose_refine_iterations"]):
+        fe = Frontend(seq.camera, {"pose_estimator": "classic", "pose_refine_iterations": it})
         fe.process(seq.image(10), 0.0)
         results.append(fe.process(seq.image(11), 0.1))
     off, on = results
@@ -128,7 +128,7 @@ def test_prepared_matches_are_used_only_against_the_features_they_were_made_with
 
     seq = Sequence.load(data_dir("kitti-07"))
     img = [seq.image(i) for i in (10, 11, 12, 13)]
-    fe = Frontend(seq.camera, {"selector": "ratio+magsac", "max_keypoints": 500, "match_stage": "first"})
+    fe = Frontend(seq.camera, {"pose_estimator": "classic", "max_keypoints": 500, "match_stage": "first"})
     p = [fe.prepare(im) for im in img]
     assert p[0].matches is None and p[1].against is p[0].feats and p[3].against is p[2].feats
     assert "match" in p[1].timings_ms and "match" not in p[0].timings_ms
@@ -139,7 +139,7 @@ def test_prepared_matches_are_used_only_against_the_features_they_were_made_with
     fe.reset()
     fe.process_prepared(p[0], 1.0)
     assert len(fe.process_prepared(p[2], 1.1).k0) == 500  # made against p[1], the previous frame is p[0]: matched again
-    fe.reconfigure({"mutual": True})
+    fe.reconfigure({"matching": "mutual"})
     r = fe.process_prepared(p[3], 1.2)  # made against p[2], but without the mutual check: matched again with it
     assert 40 != len(r.k0) < 500
     fe.reset()
@@ -224,13 +224,13 @@ def test_matching_runs_where_it_shortens_the_slower_stage():
 
     assert match_first(73, 28, 92) and not match_first(77, 9, 64)
     seq = Sequence.load(data_dir("kitti-07"))
-    fe = Frontend(seq.camera, {"selector": "ratio+magsac", "max_keypoints": 300})
+    fe = Frontend(seq.camera, {"pose_estimator": "classic", "max_keypoints": 300})
     assert [fe.prepare(seq.image(i)).matches for i in (10, 11)] == [None, None]  # no cost known yet
-    with pytest.raises(ValueError, match="match_stage must be one of auto, first, second, got 'third'"):
+    with pytest.raises(ValueError, match="match_stage: 'third' is not one of auto, first, second"):
         Frontend(seq.camera, {"match_stage": "third"})
     with pytest.raises(ValueError, match="match_stage"):
         fe.reconfigure({"match_stage": "both"})
-    with pytest.raises(ValueError, match="match_gemm must be one of auto, float32, bfloat16, got 'int8'"):
+    with pytest.raises(ValueError, match="match_gemm: 'int8' is not one of auto, float32, bfloat16"):
         fe.reconfigure({"match_gemm": "int8"})
     assert fe.config["match_stage"] == "auto" and fe.config["match_gemm"] == "auto"
 
@@ -243,13 +243,13 @@ def test_frontend_reconfigures_while_running(tmp_path):
 
     seq = Sequence.load(data_dir("kitti-07"))
     img = [seq.image(i) for i in (10, 11, 12)]
-    fe = Frontend(seq.camera, {"selector": "ratio+magsac", "threshold_px": 0.1})
+    fe = Frontend(seq.camera, {"pose_estimator": "classic", "pose_threshold_px": 0.1})
     fe.process(img[0], 0.0)
     fe.process(img[1], 0.1)
     select, detector = fe.select, fe.detector
-    fe.reconfigure({"threshold_px": 3.0})
+    fe.reconfigure({"pose_threshold_px": 3.0})
     assert fe.select is not select and fe.detector is detector and fe.prev is not None
-    fresh = Frontend(seq.camera, {"selector": "ratio+magsac", "threshold_px": 3.0})
+    fresh = Frontend(seq.camera, {"pose_estimator": "classic", "pose_threshold_px": 3.0})
     fresh.process(img[1], 0.1)
     assert fe.process(img[2], 0.2).num_selected == fresh.process(img[2], 0.2).num_selected
     select, config = fe.select, dict(fe.config)
@@ -257,12 +257,12 @@ def test_frontend_reconfigures_while_running(tmp_path):
     bad.write_bytes(b"not a checkpoint")
     with pytest.raises(WeightsError, match="bad.pt"):
         fe.reconfigure({"weights": str(bad)})  # refused even though ratio+magsac does not use the network
-    with pytest.raises(ValueError, match="unknown detector"):
-        fe.reconfigure({"detector": "orb", "threshold_px": 0.5})
+    with pytest.raises(ValueError, match="detector: .orb. is not one of"):
+        fe.reconfigure({"detector": "orb", "pose_threshold_px": 0.5})
     with pytest.raises(ValueError, match=r"unknown front-end setting\(s\) \['thresh'\]"):
         fe.reconfigure({"thresh": 0.5})
     with pytest.raises(ValueError, match=r"unknown front-end setting\(s\) \['thresh'\]"):  # a typo was ignored at start
-        Frontend(seq.camera, {"selector": "ratio+magsac", "thresh": 0.5})
+        Frontend(seq.camera, {"pose_estimator": "classic", "thresh": 0.5})
     assert fe.select is select and fe.config == config and fe.prev is not None
     fe.reconfigure({"max_keypoints": 500})
     assert fe.process(img[0], 0.3).status == "first_frame"
@@ -276,7 +276,7 @@ def test_a_change_while_a_frame_is_related_applies_from_the_next_frame():
     from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
-    fe = Frontend(seq.camera, {"selector": "ratio+magsac"})
+    fe = Frontend(seq.camera, {"pose_estimator": "classic"})
     fe.process(seq.image(10), 0.0)
     select = fe.select
 
@@ -296,7 +296,7 @@ def test_a_detector_swap_between_the_two_stages_starts_a_new_chain():
 
     seq = Sequence.load(data_dir("kitti-07"))
     img = [seq.image(i) for i in (30, 31, 32, 33)]
-    fe = Frontend(seq.camera, {"selector": "ratio+magsac", "match_stage": "first"})
+    fe = Frontend(seq.camera, {"pose_estimator": "classic", "match_stage": "first"})
     assert fe.process(img[0], 0.0).status == "first_frame"
     old = fe.prepare(img[1])  # stage 1 done, still on its way to stage 2
     fe.reconfigure({"max_keypoints": 500})
@@ -316,7 +316,7 @@ def test_a_frame_is_related_with_the_camera_it_was_prepared_with():
 
     seq = Sequence.load(data_dir("kitti-07"))
     R_gt, t_gt = seq.relative_pose(40, 41)
-    fe = Frontend(seq.camera, {"selector": "ratio+magsac"})
+    fe = Frontend(seq.camera, {"pose_estimator": "classic"})
     fe.process(seq.image(40), 0.0)
     p = fe.prepare(seq.image(41))
     K = seq.camera.K.copy()
@@ -332,7 +332,7 @@ def test_a_frame_from_before_the_previous_one_starts_a_new_chain():
 
     seq = Sequence.load(data_dir("kitti-07"))
     img = [seq.image(i) for i in (20, 21, 22)]
-    fe = Frontend(seq.camera, {"selector": "ratio+magsac"})
+    fe = Frontend(seq.camera, {"pose_estimator": "classic"})
     assert [fe.process(img[0], 10.0).status, fe.process(img[1], 10.1).status] == ["first_frame", "ok"]
     assert fe.process(img[0], 10.1 - 1.5).status == "time_jump"  # 1.5 s back: more than time_jump_s
     r = fe.process(img[1], 8.7)
@@ -504,11 +504,12 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     assert run.returncode == 0, run.stderr
     assert f"| AUC@5 per sequence (pairs) | {seq}:120-122 (2) | {tmp_path}/other/kitti-07:120-122 (2) |" in run.stdout
     for option, value, error in (("--reference", "sift", "argument --reference: invalid choice: 'sift'"),
-                                 ("--score-threshold", "1.5", "--score-threshold must be in [0, 1)"),
-                                 ("--threshold-px", "0", "--threshold-px must be > 0"),
-                                 ("--refine-iterations", "-1", "--refine-iterations must be >= 0"),
-                                 ("--seeds", "0", "--seeds must be >= 1"),
-                                 ("--max-iters", "0", "--max-iters must be >= 1")):
+                                 ("--score-threshold", "1.5", "score_threshold: 1.5 is out of range -1.0 .. 1.0"),
+                                 ("--pose-threshold-px", "0", "pose_threshold_px: 0.0 is out of range 0.05 .. 10.0"),
+                                 ("--threshold-px", "0", "pose_threshold_px: 0.0 is out of range"),  # the former name
+                                 ("--pose-refine-iterations", "-1", "pose_refine_iterations: -1 is out of range 0 .. 50"),
+                                 ("--seeds", "0", "argument --seeds: '0': expected a whole number >= 1"),
+                                 ("--max-iters", "0", "argument --max-iters: '0': expected a whole number >= 1")):
         bad = subprocess.run(cmd + [option, value], capture_output=True, text=True)
         assert bad.returncode != 0 and error in bad.stderr, (option, bad.stderr)
 
@@ -520,17 +521,18 @@ def test_eval_outputs_are_checked_before_the_evaluation_and_written_where_asked(
 
     cmd = [sys.executable, "-m", "nmnet_ros.tools.cli", "eval", f"{data_dir('kitti-07')}:120-122", "--gaps", "1", "--methods",
            "ratio,oracle", "--cache", str(cache.root)]
-    bad = subprocess.run(cmd + ["--plot", str(tmp_path)], capture_output=True, text=True)  # a folder
+    bad = subprocess.run(cmd + ["--plot", str(tmp_path)], capture_output=True, text=True)  # the former option: a folder
     assert bad.returncode == 2 and f"--plot {tmp_path} is a folder: give a file name" in bad.stderr, bad.stderr
     assert "ready in" not in bad.stderr  # said before any feature was loaded
-    plot, out = tmp_path / "new" / "curves", tmp_path / "other" / "eval.json"  # folders not there yet; no suffix
-    run = subprocess.run(cmd + ["--plot", str(plot), "--json", str(out)], capture_output=True, text=True)
+    plots, out = tmp_path / "new", tmp_path / "other" / "eval.json"  # folders not there yet
+    run = subprocess.run(cmd + ["--plots", str(plots), "--json", str(out)], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
+    plot = plots / "eval_curves.png"
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and set(json.loads(out.read_text())["methods"]) == {"ratio", "oracle"}
     assert "eval: kitti-07:120-122: 2 pairs, mean inlier ratio" in run.stderr and "eval: oracle: 2 pairs x 1 run(s) in" in run.stderr
     afile = tmp_path / "afile"
     afile.write_text("")
-    bad = subprocess.run(cmd + ["--plot", str(afile / "c.png")], capture_output=True, text=True)  # under a file
+    bad = subprocess.run(cmd + ["--plots", str(afile)], capture_output=True, text=True)  # a file, not a folder
     assert bad.returncode == 2 and str(afile) in bad.stderr and "pairs ready" not in bad.stderr, bad.stderr
     numbers = out.read_text()  # the plot was written over the numbers when both named one file
     for args, said in ((["--json", str(out), "--plot", str(out)], f"--plot {out} is also --json: give the plot its own"),
@@ -543,15 +545,15 @@ def test_eval_outputs_are_checked_before_the_evaluation_and_written_where_asked(
 def test_pose_refinement_keeps_the_selection_and_lowers_the_robust_cost(pairs):
     """refine_iterations polishes the pose only: same masks; on real pairs the pose moves and its
     Cauchy-robust Sampson cost over MAGSAC++'s input drops (the accuracy gain is measured by nmnet eval)."""
-    on = DEFAULT_CONFIG["refine_iterations"]
-    select_off, select_on = build("ratio+magsac", {"refine_iterations": 0}), build("ratio+magsac", {"refine_iterations": on})
+    on = DEFAULT_CONFIG["pose_refine_iterations"]
+    select_off, select_on = build("ratio+magsac", {"pose_refine_iterations": 0}), build("ratio+magsac", {"pose_refine_iterations": on})
     moved = []
     for p in pairs:
         c = to_correspondences(p)
         off, ref = select_off(c), select_on(c)
         assert np.array_equal(off.mask, ref.mask)
         keep = classic_mask(c)
-        sigma = DEFAULT_CONFIG["threshold_px"] / c.focal
+        sigma = DEFAULT_CONFIG["pose_threshold_px"] / c.focal
         before = robust_cost(off.pose, c.x0[keep], c.x1[keep], sigma)
         after = robust_cost(ref.pose, c.x0[keep], c.x1[keep], sigma)
         assert after <= before
@@ -573,10 +575,10 @@ def test_robust_fit_takes_indices_and_a_separate_polish_set(pairs):
         wide = np.flatnonzero(keep | (c.ratio < 0.9))
         polished = robust_fit(c, keep, "magsac", cfg, polish=wide)
         assert np.array_equal(polished.mask, by_mask.mask)
-        sigma = cfg["threshold_px"] / c.focal
-        unpolished = robust_fit(c, keep, "magsac", {**cfg, "refine_iterations": 0})
+        sigma = cfg["pose_threshold_px"] / c.focal
+        unpolished = robust_fit(c, keep, "magsac", {**cfg, "pose_refine_iterations": 0})
         assert robust_cost(polished.pose, c.x0[wide], c.x1[wide], sigma) <= robust_cost(unpolished.pose, c.x0[wide], c.x1[wide], sigma)
-        over_wide = refine_pose(unpolished.pose, c.x0[wide], c.x1[wide], sigma, cfg["refine_iterations"])
+        over_wide = refine_pose(unpolished.pose, c.x0[wide], c.x1[wide], sigma, cfg["pose_refine_iterations"])
         assert np.array_equal(polished.pose.R, over_wide.R) and not np.array_equal(polished.pose.R, by_mask.pose.R)
         order = np.flatnonzero(keep)[np.argsort(-c.ratio[keep])]  # worst first: a bad order for PROSAC
         prosac_differs.append(not np.array_equal(robust_fit(c, order, "magsac", cfg, prosac=True).mask, by_mask.mask))
@@ -593,7 +595,7 @@ def test_frames_wider_than_resize_width_are_detected_downscaled_and_reported_in_
     from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
-    (w, h), cfg = (seq.camera.width, seq.camera.height), {"selector": "ratio+magsac"}
+    (w, h), cfg = (seq.camera.width, seq.camera.height), {"pose_estimator": "classic"}
     native = [seq.image(i) for i in (120, 121)]
     big = [cv2.resize(im, (2 * w, 2 * h), interpolation=cv2.INTER_LINEAR) for im in native]
     cam2 = seq.camera.resized(2 * w, 2 * h)
@@ -616,7 +618,7 @@ def test_frames_wider_than_resize_width_are_detected_downscaled_and_reported_in_
     wide.reconfigure({"resize_width": w // 2})
     assert wide.process(native[0], 0.3).status == "size_changed"
     for bad in (-1, 12.5):  # `nmnet replay --resize-width -1`, a float from a script: refused, named, nothing changed
-        with pytest.raises(ValueError, match="resize_width must be a width in pixels"):
+        with pytest.raises(ValueError, match="resize_width: (-1 is out of range 0 .. 20000|12.5 is a float, the setting an integer)"):
             wide.reconfigure({"resize_width": bad})
         with pytest.raises(ValueError, match="resize_width"):
             Frontend(seq.camera, {"resize_width": bad})
@@ -642,7 +644,7 @@ def test_a_zoom_camera_gets_each_frame_through_its_own_camera_info():
     K1[1, 1] *= s
     zoomed = Camera(K1, seq.camera.dist, seq.camera.width, seq.camera.height)
     R_gt, t_gt = seq.relative_pose(130, 133)
-    fe = Frontend(seq.camera, {"selector": "ratio+magsac"})
+    fe = Frontend(seq.camera, {"pose_estimator": "classic"})
     fe.process(seq.image(130), 0.0)
     fe.camera = zoomed
     r = fe.process(img1, 0.1)

@@ -147,7 +147,7 @@ def test_matches_within_px_publishes_the_pose_fits_candidates_near_the_pose_for_
     print(f"published {sum(r.num_selected for r in runs[0.5])} against {sum(r.num_selected for r in runs[0.0])}; "
           f"{100 * share:.2f} % within 1 px of the ground truth; tracks {tracks}")
     assert share > 0.99 and tracks[0.5]["mean_frames"] > tracks[0.0]["mean_frames"] + 0.3
-    classic = Frontend(seq.camera, {"selector": "ratio+magsac", "matches_within_px": 0.5})  # no network: scores 1.0
+    classic = Frontend(seq.camera, {"pose_estimator": "classic", "matches_within_px": 0.5})  # no network: scores 1.0
     classic.process(seq.image(0), 0.0)
     r = classic.process(seq.image(1), 1.0)
     assert r.num_selected > r.pose_matches and (r.scores[r.mask] == 1.0).all() and (r.scores[~r.mask] == 0.0).all()

@@ -17,8 +17,9 @@ from nmnet_ros.core.neighbors import mine_neighbors
 from nmnet_ros.core.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
 from nmnet_ros.io.cache import FeatureCache
 from nmnet_ros.io.pairs import load_pairs, shared_frames
-from nmnet_ros.tools.evaluate import add_arguments as eval_args
-from nmnet_ros.tools.neighbor_study import add_arguments as neighbors_args
+from nmnet_ros.tools.options import evaluate as eval_args
+from nmnet_ros.tools.options import neighbors as neighbors_args
+from nmnet_ros.tools.options import train as train_args
 from nmnet_ros.tools.train import (
     DEFAULT_CONFIG,
     MIN_THINNED_RATIO,
@@ -36,7 +37,6 @@ from nmnet_ros.tools.train import (
     train,
     turn_camera,
 )
-from nmnet_ros.tools.train import add_arguments as train_args
 
 from .conftest import data_dir
 
@@ -570,7 +570,7 @@ def test_ratio_input_fine_tune_starts_as_the_checkpoint_and_is_kept(tmp_path):
         expected = torch.sigmoid(model(x5, nb))[0].numpy()
         x5[..., 4] = 1.0 - x5[..., 4]
         other = torch.sigmoid(model(x5, nb))[0].numpy()
-    sel = build("nmnet", {"precision": "float32"}, {"nmnet": str(tmp_path / "ratio.pt")})
+    sel = build("nmnet", {"nmnet_precision": "float32"}, {"nmnet": str(tmp_path / "ratio.pt")})
     scores = sel(to_correspondences(pair)).scores
     np.testing.assert_allclose(scores, expected, atol=1e-4)
     assert np.abs(other - expected).max() > 0.1

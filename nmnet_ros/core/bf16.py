@@ -15,7 +15,9 @@ from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic
 
-PRECISIONS = ("auto", "float32", "bfloat16")  # a setting's choices: auto = bfloat16 where the CPU has it natively
+from .settings import PRECISION_NAMES
+
+PRECISIONS = PRECISION_NAMES  # a setting's choices: auto = bfloat16 where the CPU has it natively
 # bfloat16 GEMMs pad their rows to a multiple of this: oneDNN builds (JITs) a kernel for every new shape, ~9 ms
 # per frame with a new N; padded, a stream of frames meets at most max_keypoints / PAD shapes
 PAD = 64

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from .fast_hessaff import FastHessianAffine
 from .features import Detector, HessianAffine, SiftSimilarity
+from .settings import FRONTEND_DEFAULTS
 
 DETECTORS: dict[str, type] = {
     "hessian-affine-fast": FastHessianAffine,  # batched OpenCV/torch Hessian-affine (default; NM-Net fine-tuned on it last)
     "hessian-affine": HessianAffine,  # kornia reference path (NM-Net trained on it first, see the model card)
     "sift": SiftSimilarity,  # OpenCV SIFT with similarity frames (the classic baseline's features)
 }
-DEFAULT_DETECTOR = "hessian-affine-fast"  # what the node runs, and so what `nmnet train` trains on unless told
+DEFAULT_DETECTOR = FRONTEND_DEFAULTS["detector"]  # what the node runs, and so what `nmnet train` trains on unless told
 
 
 def make_detector(name: str, config: dict | None = None) -> Detector:

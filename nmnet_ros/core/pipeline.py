@@ -19,44 +19,26 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .bf16 import PRECISIONS
-from .detectors import DEFAULT_DETECTOR, make_detector
-from .features import DEFAULT_CONFIG as FEATURE_DEFAULTS
+from .detectors import make_detector
 from .features import Detector, Features
 from .geometry import Camera, PoseEstimate, fit_rotation, sampson_px, scale_pixels
 from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
 from .planes import one_of_a_plane
-from .selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
-from .selectors import Correspondences, Selection, build
+from .selectors import METHODS, Correspondences, Selection, build
+from .settings import FRONTEND_DEFAULTS, POSE_ESTIMATORS, problem
 from .tracks import NO_TRACK, continue_tracks
 
-DEFAULT_CONFIG: dict = {
-    "detector": DEFAULT_DETECTOR,  # or "hessian-affine" (kornia reference), "sift" (similarity frames)
-    "max_keypoints": FEATURE_DEFAULTS["max_keypoints"],
-    "resize_width": 0,  # frames wider than this are downscaled to it before detection (0: as they come)
-    "selector": "nmnet+ratio+magsac",  # any method of nmnet_ros.core.selectors except 'oracle'
-    "weights": None,  # NM-Net weights file; None = shipped
-    "score_threshold": None,  # None: the threshold calibrated with the weights
-    "k": 8,  # compatibility neighbours per correspondence
-    "threshold_px": SELECTOR_DEFAULTS["threshold_px"],  # MAGSAC++ inlier threshold, pixels
-    "refine_iterations": SELECTOR_DEFAULTS["refine_iterations"],  # robust pose polish after MAGSAC++ (0 = off)
-    "precision": SELECTOR_DEFAULTS["precision"],  # NM-Net: auto (bfloat16 where native), float32, bfloat16
-    "ratio": None,  # optional ratio test on the putative matches (the paper uses none)
-    "mutual": False,
-    "match_gemm": "auto",  # descriptor similarities: auto (bfloat16 screen + float32 re-check where native), float32
-    "min_matches": 8,
-    "static_flow_px": 1.0,  # median flow of the selected matches below this (pixels): the camera stands, no baseline
-    "static_parallax_px": 0.25,  # median flow the rotation fitted alone leaves below this: turning on the spot, no baseline
-    "time_jump_s": 1.0,  # a frame this much older than the previous one starts a new chain (bag loop, clock reset)
-    "matches_within_px": 0.0,  # > 0: publish every match the pose was fitted on within this Sampson distance (px)
-    "match_stage": "auto",  # where matching runs: auto (the stage split with the shorter slower stage), first, second
-}
-
+DEFAULT_CONFIG: dict = dict(FRONTEND_DEFAULTS)  # the settings vocabulary's front-end settings (core/settings.py)
 
 DETECTOR_KEYS = ("detector", "max_keypoints")  # resize_width restarts the chain by itself: another frame size
-SELECTOR_CONFIG = ("score_threshold", "k", "threshold_px", "refine_iterations", "precision")  # passed on to selectors.build
-SELECTOR_KEYS = ("selector", "weights", *SELECTOR_CONFIG)
+SELECTOR_CONFIG = ("score_threshold", "k", "pose_threshold_px", "pose_refine_iterations", "nmnet_precision")
+SELECTOR_KEYS = ("pose_estimator", "weights", *SELECTOR_CONFIG)
+
+
+def selector_name(pose_estimator: str) -> str:
+    """The selector (``nmnet eval``'s method) a pose_estimator runs: the node's four names, or offline any method."""
+    return POSE_ESTIMATORS.get(pose_estimator, pose_estimator)
 
 
 def _detector(c: dict) -> Detector:
@@ -64,26 +46,30 @@ def _detector(c: dict) -> Detector:
 
 
 def _selector(c: dict) -> Callable[[Correspondences], Selection]:
-    return build(c["selector"], {key: c[key] for key in SELECTOR_CONFIG}, {"nmnet": c["weights"]} if c["weights"] else None)
+    return build(selector_name(c["pose_estimator"]), {key: c[key] for key in SELECTOR_CONFIG},
+                 {"nmnet": c["weights"]} if c["weights"] else None)
 
 
 # statuses of a frame that starts a new chain: nothing to relate it to (its relative_pose says "no estimate")
 RESTARTS = ("first_frame", "size_changed", "time_jump")
 
 
-MATCH_STAGES = ("auto", "first", "second")
-
-
-def _check_choices(c: dict) -> None:
-    """ValueError for a setting the front end cannot run with (before any frame, not on the first one)."""
-    for key, choices in (("match_stage", MATCH_STAGES), ("match_gemm", PRECISIONS)):
-        if c[key] not in choices:
-            raise ValueError(f"{key} must be one of {', '.join(choices)}, got {c[key]!r}")
-    if c["selector"] == "oracle":  # it selects by ground-truth labels, which only sequence folders have (nmnet eval)
-        raise ValueError("selector 'oracle' needs each match's ground-truth label, which only `nmnet eval` on sequence "
-                         "folders has: on frames it would select nothing; choose another (see nmnet eval)")
-    if not isinstance(c["resize_width"], (int, np.integer)) or c["resize_width"] < 0:
-        raise ValueError(f"resize_width must be a width in pixels >= 0 (0: full resolution), got {c['resize_width']!r}")
+def _settled(config: dict) -> dict:
+    """``config`` over the defaults, checked (ValueError naming the setting and its range, or an unknown name)
+    before any frame, not on the first one; weights as a string ('' = shipped)."""
+    if unknown := sorted(set(config) - set(DEFAULT_CONFIG)):
+        raise ValueError(f"unknown front-end setting(s) {unknown}; known: {', '.join(DEFAULT_CONFIG)}")
+    c = {**DEFAULT_CONFIG, **config}
+    c["weights"] = str(c["weights"] or "")
+    for key, value in c.items():
+        if key == "pose_estimator" and value in METHODS:  # offline (replay --pose-estimator): any nmnet eval method
+            if value == "oracle":  # it selects by ground-truth labels, which only sequence folders have (nmnet eval)
+                raise ValueError("pose_estimator 'oracle' needs each match's ground-truth label, which only `nmnet eval` "
+                                 "on sequence folders has: on frames it would select nothing; choose another (see nmnet eval)")
+            continue
+        if (why := problem(key, value, strict=False)) is not None:
+            raise ValueError(why)
+    return c
 
 
 def downscaled(image: np.ndarray, width: int) -> np.ndarray:
@@ -195,12 +181,6 @@ def related(a: Prepared, b: Prepared) -> bool:
     return a.detector is b.detector and (a.size, a.full) == (b.size, b.full)
 
 
-def _check_known(config: dict) -> None:
-    """ValueError naming a setting the front end does not have (a typo would otherwise be ignored)."""
-    if unknown := sorted(set(config) - set(DEFAULT_CONFIG)):
-        raise ValueError(f"unknown front-end setting(s) {unknown}; known: {', '.join(DEFAULT_CONFIG)}")
-
-
 @dataclass(frozen=True)
 class Settings:
     """The front end's settings and what is built from them, swapped whole by :meth:`Frontend.reconfigure`: each
@@ -213,16 +193,15 @@ class Settings:
     def match_key(self) -> tuple:
         """The matching settings, as recorded with matches made in the first stage."""
         c = self.config
-        return (("ratio", c["ratio"]), ("mutual", c["mutual"]), ("gemm", c["match_gemm"]))
+        return (("ratio", 0.8 if c["matching"] == "ratio" else None), ("mutual", c["matching"] == "mutual"),
+                ("gemm", c["match_gemm"]))
 
 
 class Frontend:
     """Hessian-affine + NN matching + NM-Net (or another selector) + relative pose, frame to frame."""
 
     def __init__(self, camera: Camera | None = None, config: dict | None = None) -> None:
-        _check_known(config or {})
-        c = {**DEFAULT_CONFIG, **(config or {})}
-        _check_choices(c)
+        c = _settled(config or {})
         self.camera = camera
         self.settings = Settings(c, _detector(c), _selector(c))
         warm_up_matching()  # like the detector's and NM-Net's kernels: compiled before the first frame
@@ -254,10 +233,8 @@ class Frontend:
         with the settings it started with. A new detector restarts the chain: each frame carries its detector, and
         one detected before the swap is never related to one after.
         """
-        _check_known(changes)
         old = self.settings
-        c = {**old.config, **changes}
-        _check_choices(c)
+        c = _settled({**old.config, **changes})
         detector = _detector(c) if any(c[key] != old.config[key] for key in DETECTOR_KEYS) else old.detector
         select = _selector(c) if any(c[key] != old.config[key] for key in SELECTOR_KEYS) else old.select
         self.settings = Settings(c, detector, select)

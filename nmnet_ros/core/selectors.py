@@ -23,16 +23,21 @@ from .geometry import PoseEstimate, estimate_essential, recover_pose, refine_pos
 from .model import NMNet, load_model, network_input
 from .model_fast import FastNMNet, resolve_precision
 from .neighbors import mine_neighbors, warm_up
+from .settings import FRONTEND_DEFAULTS, METHODS
 
 DEFAULT_CONFIG: dict = {
-    "threshold_px": 0.15,  # robust-estimator inlier threshold, pixels (best pose AUC on training pairs; see README)
+    # the settings of core/settings.py that the selectors read, by the same names and defaults
+    **{name: FRONTEND_DEFAULTS[name] for name in ("pose_threshold_px", "score_threshold", "pose_refine_iterations",
+                                                  "nmnet_precision")},
     "ratio": 0.8,
-    "score_threshold": None,  # NM-Net probability above which a match is selected; None = calibrated with the weights
-    "refine_iterations": 5,  # robust pose polish after MAGSAC++/RANSAC (0 = off; 5 saturates on training pairs)
     "max_iters": 10000,  # MAGSAC++/RANSAC iteration cap (they stop earlier once confident)
     "seed": 0,  # MAGSAC++/RANSAC random samples (fixed: the same frames give the same pose)
-    "precision": "auto",  # NM-Net's GEMMs: auto (bfloat16 where the CPU has it natively), float32 (exact), bfloat16
 }
+
+
+def calibrated_threshold(cfg: dict) -> bool:
+    """Whether NM-Net keeps matches above the threshold calibrated with its weights (score_threshold -1 or None)."""
+    return cfg["score_threshold"] is None or cfg["score_threshold"] < 0
 
 
 @dataclass
@@ -81,7 +86,7 @@ def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, pol
     """
     keep = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep, np.intp)
     mask = np.zeros(len(c), bool)
-    threshold = cfg["threshold_px"] / c.focal
+    threshold = cfg["pose_threshold_px"] / c.focal
     x0, x1 = c.x0[keep], c.x1[keep]
     est = estimate_essential(x0, x1, method, threshold, max_iters=cfg["max_iters"], seed=cfg["seed"], prosac=prosac)
     if est is None:
@@ -90,7 +95,7 @@ def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, pol
     pose = recover_pose(E, x0, x1, inl)
     if pose is not None:
         p0, p1 = (x0, x1) if polish is None else (c.x0[polish], c.x1[polish])
-        pose = refine_pose(pose, p0, p1, threshold, cfg["refine_iterations"])
+        pose = refine_pose(pose, p0, p1, threshold, cfg["pose_refine_iterations"])
     mask[keep[inl]] = True
     candidates = np.zeros(len(c), bool)
     candidates[keep] = True
@@ -121,7 +126,7 @@ def nmnet_scores(model: NMNet | FastNMNet, c: Correspondences, cfg: dict,
     """(logits, probabilities, selection mask at the configured or calibrated threshold)."""
     logits = nmnet_logits(model, c, neighbors)
     scores = 0.5 * (1.0 + np.tanh(0.5 * logits))  # sigmoid without exp overflow
-    threshold = cfg["score_threshold"] if cfg["score_threshold"] is not None else model.score_threshold
+    threshold = model.score_threshold if calibrated_threshold(cfg) else cfg["score_threshold"]
     return logits, scores, scores > threshold
 
 
@@ -217,7 +222,7 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
     samples (NM-Net runs once per pair, only the robust stage is redone).
     """
     cfg = {**DEFAULT_CONFIG, **(config or {})}
-    dtype = resolve_precision(cfg["precision"])  # a bad choice is refused by every method
+    dtype = resolve_precision(cfg["nmnet_precision"])  # a bad choice is refused by every method
     weights = weights or {}
     nmnet = name in NETWORK
     variant = "nmnet-sp" if name == "nmnet-sp" else "nmnet"
@@ -230,7 +235,7 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
 
     if nmnet:
         net = load_model(weights.get(variant), variant)
-        if cfg["score_threshold"] is None and not net.calibrated:
+        if calibrated_threshold(cfg) and not net.calibrated:
             warnings.warn(f"{weights.get(variant)}: no calibrated score threshold (a training run stopped before its "
                           "end, or its last.pt), so NM-Net keeps the matches above 0.5: finish the run (nmnet train "
                           "--resume) or set score_threshold", stacklevel=2)
@@ -258,7 +263,5 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
     return table[name]
 
 
-METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ransac", "magsac", "gms", "lpm", "nmnet+magsac",
-           "nmnet+ratio+magsac", "oracle")
 ROBUST = ("ratio+magsac", "ransac", "magsac", "nmnet+magsac", "nmnet+ratio+magsac", "oracle")  # end in a seeded robust fit
 NETWORK = ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac")  # run NM-Net

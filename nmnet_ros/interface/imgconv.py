@@ -12,6 +12,8 @@ from array import array
 import cv2
 import numpy as np
 
+from ..core.settings import BY_NAME
+
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")  # the messages frames come in
 Buffer = bytes | bytearray | memoryview | array | np.ndarray  # a message's data: array('B') from rclpy, uint8 arrays from rosbags
 
@@ -83,7 +85,7 @@ def image_to_array(height: int, width: int, encoding: str, step: int, data: Buff
 
 
 COMPRESSED_FORMATS = ("jpeg", "png")  # what CompressedImage may hold: image_transport's compressed codecs
-MAX_PIXELS = 20_000_000  # the node's max_image_pixels default: 20 MP (5472x3648); 22 MP peak at 1.4 GB through the front end
+MAX_PIXELS = BY_NAME["max_image_pixels"].default  # 20 MP (5472x3648); 22 MP peak at 1.4 GB through the front end
 CALIBRATED_SCALE = 4  # a frame may have up to this many times the calibrated pixels (a stream resized up 2x)
 _PNG = b"\x89PNG\r\n\x1a\n"
 _SOF = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})  # JPEG frame headers

@@ -17,10 +17,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.geometry import PoseEstimate, quat_to_rot, rotation_error_deg
+from ..core.settings import BY_NAME
 
-ROT_SIGMA_DEG = 0.5  # per-axis rotation sigma at REF_MATCHES selected matches (the node's pose_sigma_rotation_deg)
+ROT_SIGMA_DEG = BY_NAME["pose_sigma_rotation_deg"].default  # per-axis rotation sigma at REF_MATCHES selected matches
 ROT_SIGMA_RAD = np.radians(ROT_SIGMA_DEG)
-DIR_SIGMA = 0.05  # per-axis sigma of the unit translation direction at REF_MATCHES (pose_sigma_direction)
+DIR_SIGMA = BY_NAME["pose_sigma_direction"].default  # per-axis sigma of the unit translation direction at REF_MATCHES
 SIGMAS = (ROT_SIGMA_DEG, DIR_SIGMA)  # the default (rotation degrees, direction) at REF_MATCHES
 REF_MATCHES = 200
 NO_ESTIMATE_VAR = 1e6  # variance on every axis of a frame without an estimate

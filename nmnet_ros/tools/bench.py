@@ -23,7 +23,6 @@ import torch
 
 from ..core.neighbors import compatibility_neighbors, compatibility_neighbors_loop, spatial_neighbors
 from ..io.outputs import output_file, write_json
-from .cli import file_path, whole
 
 if TYPE_CHECKING:  # the network and OpenCV load when a benchmark runs, not on import
     from ..core.geometry import Camera
@@ -187,7 +186,7 @@ def bench_pipeline(frames: list[np.ndarray], camera: Camera, sizes: tuple[int, .
             # machine's speed cancels
             fe = {m: Frontend(cam, {"max_keypoints": n, "match_stage": m}) for m in ("auto", "second")}
             if model32 is not None:
-                fe["float32"] = Frontend(cam, {"max_keypoints": n, "precision": "float32"})
+                fe["float32"] = Frontend(cam, {"max_keypoints": n, "nmnet_precision": "float32"})
                 fe["match_float32"] = Frontend(cam, {"max_keypoints": n, "match_gemm": "float32"})
             hz: dict[str, list[float]] = {m: [] for m in fe}
             for m in [*fe, *reversed(fe)]:
@@ -252,26 +251,6 @@ def bench_hd(frames: list[np.ndarray], camera: Camera, size: tuple[int, int] = (
     return out
 
 
-def correspondence_counts(text: str) -> tuple[int, ...]:
-    """``--sizes``' value, '1000,2000': counts >= 1 (argparse names the option when it is not)."""
-    try:
-        return tuple(whole(1)(s) for s in text.split(","))
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected correspondence counts >= 1, comma-separated "
-                                         "(1000,2000)") from None
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """CLI options of ``nmnet bench``."""
-    p.add_argument("--sizes", type=correspondence_counts, default=(1000, 2000), help="correspondence counts, e.g. 1000,2000")
-    p.add_argument("--repeat", type=whole(1), default=20, help="timed runs of each step (the median is reported)")
-    p.add_argument("--json", type=file_path, default=None, help="write the numbers as JSON")
-    p.add_argument("--pipeline", action="store_true", help="also time every pipeline stage on the sample bag's frames")
-    p.add_argument("--frames", type=whole(2), default=16, help="frames of the sample bag used with --pipeline")
-    p.add_argument("--threads", type=whole(1), default=None,
-                   help="CPU threads of the serial timings (default: torch's); 1 = one node stage's budget")
-
-
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet bench``."""
     output_file(args.json, "--json", "bench.json")
@@ -292,7 +271,7 @@ def _run(args: argparse.Namespace) -> int:
               f"{r['loop_ms']:.0f} | {r['speedup_vs_loop']:.0f}x |")
     if args.pipeline:
         from ..io.bags import BagReader, read_frames
-        from .demo import SAMPLE_BAG
+        from .options import SAMPLE_BAG
 
         it, _ = read_frames(BagReader(SAMPLE_BAG))
         frames = [f for _, f in zip(range(args.frames), it, strict=False)]

@@ -4,27 +4,29 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import math
-import os
 import signal
 import sys
 import threading
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from pathlib import Path
 
 from ..ros.entry import ros_missing, version
+from . import options
 
-# subcommand -> (module, help); each module has add_arguments(parser) and main(args) -> int
-SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("nmnet_ros.tools.demo", "the bundled sample bag live through the node, then offline beside SIFT; scores and plots"),
-    "train": ("nmnet_ros.tools.train", "train NM-Net on sequence folders"),
-    "eval": ("nmnet_ros.tools.evaluate", "compare correspondence selectors on sequence folders"),
-    "neighbors": ("nmnet_ros.tools.neighbor_study", "inlier ratio of compatibility vs spatial neighbours (paper Fig. 3)"),
-    "bench": ("nmnet_ros.tools.bench", "time the pipeline stages on this machine"),
-    "make-bag": ("nmnet_ros.tools.make_bag", "convert a sequence folder into a ROS 1 .bag, ROS 2 .db3 or .mcap"),
-    "replay": ("nmnet_ros.tools.replay", "run the front end over a bag, record outputs, evaluate against ground truth"),
+# subcommand -> (module with main(args) -> int, its options in tools/options.py, help)
+SUBCOMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], str]] = {
+    "demo": ("nmnet_ros.tools.demo", options.demo,
+             "the bundled sample bag live through the node, then offline beside SIFT; scores and plots"),
+    "train": ("nmnet_ros.tools.train", options.train, "train NM-Net on sequence folders"),
+    "eval": ("nmnet_ros.tools.evaluate", options.evaluate, "compare correspondence selectors on sequence folders"),
+    "neighbors": ("nmnet_ros.tools.neighbor_study", options.neighbors,
+                  "inlier ratio of compatibility vs spatial neighbours (paper Fig. 3)"),
+    "bench": ("nmnet_ros.tools.bench", options.bench, "time the pipeline stages on this machine"),
+    "make-bag": ("nmnet_ros.tools.make_bag", options.make_bag,
+                 "convert a sequence folder into a ROS 1 .bag, ROS 2 .db3 or .mcap"),
+    "replay": ("nmnet_ros.tools.replay", options.replay,
+               "run the front end over a bag, record outputs, evaluate against ground truth"),
 }
 
 
@@ -68,81 +70,21 @@ def interrupts_between_steps() -> Iterator[Callable[[], bool]]:
         yield lambda: bool(signals)
 
 
-def bounded(kind: type, least: float, expected: str, strict: bool = False) -> Callable[[str], float]:
-    """An argparse type: a finite number of ``kind`` (int or float) at least ``least``, above it when ``strict``;
-    otherwise argparse's error names the option, the value and what was ``expected``."""
-
-    def parse(text: str) -> float:
-        try:
-            value = kind(text)
-        except ValueError:
-            value = None
-        if value is None or not math.isfinite(value) or (value <= least if strict else value < least):
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {expected}")
-        return value
-
-    return parse
-
-
-def whole(least: int) -> Callable[[str], int]:
-    """An argparse type: a whole number >= ``least`` (a count)."""
-    return bounded(int, least, f"a whole number >= {least}")
-
-
-def file_path(text: str) -> Path:
-    """An output file option's value: one ending in '/' names a folder (as ``ros2 bag record -o DIR/``), which
-    ``Path`` would quietly turn into a file of the folder's name."""
-    if text.endswith(("/", os.sep)):
-        raise argparse.ArgumentTypeError(f"'{text}' ends in '/', a folder: give a file name in it")
-    return Path(text)
-
-
-def gaps(text: str) -> tuple[int, ...]:
-    """``--gaps``' value, '1-10' or '1,3,5': frame gaps >= 1, as a tuple (argparse names the option when it is not)."""
-    try:
-        if "-" in text:
-            a, b = (int(x) for x in text.split("-"))
-            out = tuple(range(a, b + 1))
-        else:
-            out = tuple(int(x) for x in text.split(","))
-    except ValueError:
-        out = ()
-    if not out or min(out) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected frame gaps >= 1 as a range (1-10) or a list (1,3,5)")
-    return out
-
-
-class HelpFormatter(argparse.HelpFormatter):
-    """``--help`` that shows each option's default where it has one (not for flags and options without one), unless
-    its help already says it."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
-        default = action.default
-        if (default is None or default is False or default == argparse.SUPPRESS or not action.option_strings
-                or "default" in text or "%(default)" in text):
-            return text
-        shown = ",".join(str(v) for v in default) if isinstance(default, (list, tuple)) else "%(default)s"
-        return f"{text} (default: {shown})"
-
-
 def build_parser() -> argparse.ArgumentParser:
-    """Parser with every subcommand's options (modules imported lazily per subcommand)."""
+    """Parser with every subcommand's options (a subcommand's module is imported only when it runs)."""
     parser = argparse.ArgumentParser(prog="nmnet", description="NM-Net visual-odometry front end: tools.")
     parser.add_argument("--version", action="version", version=version())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name, (module, help_text) in SUBCOMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=HelpFormatter)
+    for name, (module, add_options, help_text) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=options.HelpFormatter)
         p.set_defaults(_module=module)
-        if name in sys.argv[1:2]:  # only import the chosen tool's module
-            importlib.import_module(module).add_arguments(p)
+        add_options(p)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``nmnet`` console script."""
     argv = sys.argv[1:] if argv is None else argv
-    sys.argv[1:] = argv
     parser = build_parser()
     args = parser.parse_args(argv)
     warnings.formatwarning = lambda message, *_, **__: f"warning: {message}\n"  # a user's line, not Python's source line
@@ -169,21 +111,3 @@ def main(argv: list[str] | None = None) -> int:
 if __name__ == "__main__":
     sys.exit(main())
 
-
-def node_value(name: str) -> Callable[[str], object]:
-    """An argparse type for an option that sets node parameter ``name``: the node's own type and range check, so a
-    value the node would refuse stops the command there, naming the option (argparse adds it) and the range."""
-    from ..interface.params import PARAMS, check_value  # here: the parameters' module loads the detectors
-
-    kind = type(PARAMS[name][0])
-
-    def parse(text: str) -> object:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
-        if (why := check_value(name, value)) is not None:
-            raise argparse.ArgumentTypeError(why)
-        return value
-
-    return parse

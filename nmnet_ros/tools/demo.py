@@ -11,22 +11,10 @@ ROS installation sourced) the live part is skipped with a note saying how to get
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from ..io.outputs import output_folder, written_here
 from ..ros.entry import ros_missing
-from . import replay
-
-SAMPLE_BAG = Path(__file__).parents[1] / "sample" / "kitti07_120-159"
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """CLI options of ``nmnet demo``."""
-    p.add_argument("--out", "--out-dir", dest="out", type=Path, default=Path("nmnet_demo"),
-                   help="folder for the output .mcap, summary and plots (as train's --out)")
-    p.add_argument("--bag", type=Path, default=SAMPLE_BAG, help="bag to replay (default: the bundled sample)")
-    p.add_argument("--rate", type=replay.playback_rate, default=0.3,
-                   help="live playback speed (x recorded 10 Hz); 0.3 lets a 2-core machine keep up at 2000 keypoints")
+from . import options, replay
 
 
 def _without_ros() -> str | None:
@@ -46,7 +34,7 @@ def main(args: argparse.Namespace) -> int:
     output_folder(out, "--out", "the demo's outputs", [args.bag])
     out.mkdir(parents=True, exist_ok=True)
     parser = argparse.ArgumentParser()
-    replay.add_arguments(parser)  # the demo is exactly these two replay commands
+    options.replay(parser)  # the demo is exactly these two replay commands
     live = out / "nmnet_live.mcap"
     if live.is_file() and written_here(live):  # an earlier demo's: not left beside this one's other outputs
         live.unlink()

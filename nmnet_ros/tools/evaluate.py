@@ -17,21 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.bf16 import PRECISIONS
-from ..core.detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
-from ..core.features import DEFAULT_CONFIG as FEATURE_DEFAULTS
+from ..core.detectors import make_detector
 from ..core.geometry import pose_auc, pose_error_deg
 from ..core.metrics import prf
 from ..core.model import NEIGHBORS, load_model
 from ..core.model_fast import precision_note
-from ..core.selectors import DEFAULT_CONFIG as SELECTOR_DEFAULTS
 from ..core.selectors import METHODS, NETWORK, ROBUST, build
 from ..io.cache import FeatureCache
-from ..io.datasets import FOLDERS_READ
 from ..io.outputs import output_file, save_figure, write_json
 from ..io.pairs import PairData, load_pairs, parse_seq_spec, shared_frames, spec_label, to_correspondences
 from ..io.progress import progress
-from .cli import file_path, gaps, node_value, whole
 
 
 def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
@@ -164,38 +159,21 @@ def plot_curves(errors: dict[str, np.ndarray], path: Path) -> None:
     save_figure(fig, path)  # at this very path, also without a .png suffix
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """CLI options of ``nmnet eval``."""
-    p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help=f"sequence folders (optional frame range): {FOLDERS_READ}")
-    p.add_argument("--methods", default="nmnet,nmnet-sp,ratio,ransac,magsac,ratio+magsac,nmnet+magsac,oracle",
-                   help=f"comma-separated, from: {', '.join(METHODS)}")
-    p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
-    p.add_argument("--stride", type=whole(1), default=1, help="use every n-th frame as a pair's first frame")
-    p.add_argument("--max-pairs", type=whole(1), default=None, help="at most this many pairs per sequence (evenly spread)")
-    p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (default: shipped)")
-    p.add_argument("--weights-sp", type=Path, default=None, help="NM-Net-sp weights (default: shipped)")
-    p.add_argument("--json", type=file_path, default=None, help="write {method: metrics} as JSON")
-    p.add_argument("--plot", type=file_path, default=None, help="recall-vs-error plot (PNG; default: --json's path with .png, "
-                   "else eval_curves.png)")
-    p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
-    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),
-                   help="local feature frames (default: the node's)")
-    p.add_argument("--max-keypoints", type=node_value("max_keypoints"), default=FEATURE_DEFAULTS["max_keypoints"],
-                   help="keypoints per frame (the node's max_keypoints)")
-    p.add_argument("--threshold-px", type=float, default=SELECTOR_DEFAULTS["threshold_px"],
-                   help="MAGSAC++/RANSAC inlier threshold in pixels for every robust method")
-    p.add_argument("--score-threshold", type=float, default=None,
-                   help="NM-Net probability cut for every nmnet method (default: the one calibrated with the weights)")
-    p.add_argument("--reference", default="ratio+magsac", choices=METHODS,
-                   help="method the others' AUC@5 is compared with (paired bootstrap); skipped when not run")
-    p.add_argument("--max-iters", type=int, default=SELECTOR_DEFAULTS["max_iters"],
-                   help="MAGSAC++/RANSAC iteration cap for every robust method")
-    p.add_argument("--seeds", type=int, default=1,
-                   help="runs of every MAGSAC++/RANSAC method per pair, each with other random samples (metrics: the mean)")
-    p.add_argument("--refine-iterations", type=int, default=SELECTOR_DEFAULTS["refine_iterations"],
-                   help="robust pose polish after every MAGSAC++/RANSAC fit (0 = the plain OpenCV estimate)")
-    p.add_argument("--nmnet-precision", "--precision", dest="precision", default=SELECTOR_DEFAULTS["precision"], choices=PRECISIONS,
-                   help="NM-Net arithmetic (default: the node's auto, bfloat16 where the CPU has it natively)")
+SELECTOR_SETTINGS = ("score_threshold", "pose_threshold_px", "pose_refine_iterations", "nmnet_precision")
+
+
+def plot_path(args: argparse.Namespace) -> Path:
+    """Where the plot goes: ``--plots DIR``'s eval_curves.png, else beside --json and named after it (evaluations into
+    one folder keep each one's plot), else eval_curves.png here; ``--plot FILE``, the former option, as given."""
+    if args.plot is not None:
+        return args.plot
+    if args.plots is not None:
+        return args.plots / "eval_curves.png"
+    if args.json is None:
+        return Path("eval_curves.png")
+    if args.json.suffix == ".png":
+        raise ValueError(f"--json {args.json}: its .png name is where the plot goes; name it {args.json.stem}.json")
+    return args.json.with_suffix(".png")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -205,25 +183,16 @@ def main(args: argparse.Namespace) -> int:
     if unknown or not methods:  # none: an empty table and an empty plot, exit 0
         raise ValueError(f"{f'unknown method(s) {unknown}' if unknown else '--methods names none'}; choose from "
                          f"{', '.join(METHODS)}")
-    if args.score_threshold is not None and not 0.0 <= args.score_threshold < 1.0:
-        raise ValueError(f"--score-threshold must be in [0, 1), got {args.score_threshold}")
-    if not args.threshold_px > 0:
-        raise ValueError(f"--threshold-px must be > 0, got {args.threshold_px}")
     if args.max_iters < 1:
         raise ValueError(f"--max-iters must be >= 1, got {args.max_iters}")
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {args.seeds}")
-    if args.refine_iterations < 0:
-        raise ValueError(f"--refine-iterations must be >= 0 (0 = off), got {args.refine_iterations}")
     inputs = [parse_seq_spec(s)[0] for s in args.seqs] + [args.weights, args.weights_sp]
     output_file(args.json, "--json", "eval.json", inputs)
-    if args.plot is None:  # beside its numbers: evaluations into one folder keep each one's plot
-        args.plot = args.json.with_suffix(".png") if args.json is not None else Path("eval_curves.png")
-        if args.plot == args.json:
-            raise ValueError(f"--json {args.json}: its .png name is where the plot goes; name it {args.json.stem}.json")
-    output_file(args.plot, "--plot", "eval_curves.png", inputs)
-    if args.json is not None and args.plot.resolve() == args.json.resolve():
-        raise ValueError(f"--plot {args.plot} is also --json: give the plot its own file")  # it was written over the numbers
+    plot = plot_path(args)
+    output_file(plot, "--plot" if args.plot else "--plots" if args.plots else "--json", "eval_curves.png", inputs)
+    if args.json is not None and plot.resolve() == args.json.resolve():
+        raise ValueError(f"--plot {plot} is also --json: give the plot its own file")  # it was written over the numbers
     weights = {k: str(v) for k, v in (("nmnet", args.weights), ("nmnet-sp", args.weights_sp)) if v}
     for variant, path in weights.items():  # the other variant's network would be scored under this one's name
         if (kind := load_model(path).config["neighbors"]) != NEIGHBORS[variant]:
@@ -243,12 +212,11 @@ def main(args: argparse.Namespace) -> int:
         chosen = load_pairs([spec], args.gaps, cache, stride=args.stride, max_pairs=args.max_pairs)
         pairs += chosen
         groups += [label] * len(chosen)
-    res = evaluate(pairs, methods, weights, {"score_threshold": args.score_threshold, "threshold_px": args.threshold_px,
-                                             "refine_iterations": args.refine_iterations, "max_iters": args.max_iters,
-                                             "precision": args.precision},
+    res = evaluate(pairs, methods, weights, {**{name: getattr(args, name) for name in SELECTOR_SETTINGS},
+                                             "max_iters": args.max_iters},
                    args.seeds)
     runs = f"; MAGSAC++/RANSAC methods: mean of {args.seeds} seeds" if args.seeds > 1 else ""
-    net = f"; NM-Net in {precision_note(args.precision)}" if set(methods) & set(NETWORK) else ""
+    net = f"; NM-Net in {precision_note(args.nmnet_precision)}" if set(methods) & set(NETWORK) else ""
     print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%{runs}{net}\n")
     print(markdown_table(res["metrics"]))
     if args.reference in res["errors"] and len(res["errors"]) > 1:
@@ -260,6 +228,6 @@ def main(args: argparse.Namespace) -> int:
         print("\n" + per_sequence_table(res["errors"], groups, args.reference))
     if args.json:  # before the plot: the numbers are what a script reads
         write_json(args.json, {"methods": res["metrics"]})
-    plot_curves(res["errors"], args.plot)
-    print(f"\nplot: {args.plot}")
+    plot_curves(res["errors"], plot)
+    print(f"\nplot: {plot}")
     return 0

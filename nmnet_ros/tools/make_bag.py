@@ -18,7 +18,7 @@ from ..interface.caminfo import info_fields
 from ..interface.imgconv import array_to_image_fields
 from ..interface.posemsg import rot_to_quat
 from ..io.bags import BagError, typestore
-from ..io.datasets import FOLDERS_READ, DatasetError, Sequence
+from ..io.datasets import DatasetError, Sequence
 from ..io.outputs import not_an_input, output_folder
 from ..io.pairs import parse_seq_spec
 from .cli import interrupts_between_steps
@@ -156,21 +156,16 @@ class Interrupted(KeyboardInterrupt):
         self.written, self.total = written, total
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """CLI options of ``nmnet make-bag``."""
-    p.add_argument("seq", metavar="SEQ_DIR[:a-b]", help=f"sequence folder (optional frame range): {FOLDERS_READ}")
-    p.add_argument("out", type=Path, help="output: ROS 2 bag directory (mcap, sqlite3) or .bag file (ros1)")
-    p.add_argument("--format", choices=FORMATS, default="mcap", help="mcap or sqlite3: a ROS 2 bag folder; ros1: a .bag file")
-    p.add_argument("--compressed", action="store_true", help="sensor_msgs/CompressedImage instead of Image: JPEG, PNG for 16-bit frames")
-
-
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet make-bag``."""
+    if (args.out is None) == (args.out_positional is None):
+        raise ValueError("name the output once: --out BAG (or, as before, a second argument)")
+    out = args.out or args.out_positional
     path, frames = parse_seq_spec(args.seq)
     try:
-        n = make_bag(path, args.out, args.format, args.compressed, frames)
+        n = make_bag(path, out, args.format, args.compressed, frames)
     except Interrupted as stop:  # Ctrl-C, or SIGTERM (cli.main raises it as Ctrl-C)
-        print(f"interrupted: wrote {stop.written} of {stop.total} frames to {args.out}, a readable bag", file=sys.stderr)
+        print(f"interrupted: wrote {stop.written} of {stop.total} frames to {out}, a readable bag", file=sys.stderr)
         return 130
-    print(f"wrote {n} frames to {args.out}")
+    print(f"wrote {n} frames to {out}")
     return 0

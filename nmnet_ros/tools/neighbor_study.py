@@ -7,18 +7,14 @@ for compatibility-specific neighbours vs spatial kNN, grouped by the pair's inli
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 
-from ..core.detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
-from ..core.features import DEFAULT_CONFIG as FEATURE_DEFAULTS
+from ..core.detectors import make_detector
 from ..core.neighbors import compatibility_neighbors, spatial_neighbors
 from ..io.cache import FeatureCache
-from ..io.datasets import FOLDERS_READ
 from ..io.outputs import output_file, write_json
 from ..io.pairs import PairData, load_pairs, parse_seq_spec
-from .cli import file_path, gaps, node_value, whole
 
 BUCKETS = ((0, 20), (20, 35), (35, 50), (50, 101))
 
@@ -52,20 +48,6 @@ def study(pairs: list[PairData], k: int = 8) -> dict:
             "compat_wins_percent": 100 * float(np.mean(wins)) if rows else 0.0,
             "compatibility_mean": float(np.mean([r["compatibility"] for r in rows])) if rows else 0.0,
             "spatial_mean": float(np.mean([r["spatial"] for r in rows])) if rows else 0.0}
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """CLI options of ``nmnet neighbors``."""
-    p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help=f"sequence folders (optional frame range): {FOLDERS_READ}")
-    p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,2")
-    p.add_argument("--stride", type=whole(1), default=10, help="use every n-th frame as a pair's first frame")
-    p.add_argument("--k", type=whole(1), default=8, help="neighbours per correspondence (the network's k)")
-    p.add_argument("--json", type=file_path, default=None, help="write the rows and table as JSON")
-    p.add_argument("--cache", type=Path, default=None, help="feature cache folder")
-    p.add_argument("--detector", default=DEFAULT_DETECTOR, choices=sorted(DETECTORS),
-                   help="local feature frames (default: the node's)")
-    p.add_argument("--max-keypoints", type=node_value("max_keypoints"), default=FEATURE_DEFAULTS["max_keypoints"],
-                   help="keypoints per frame (the node's max_keypoints)")
 
 
 def main(args: argparse.Namespace) -> int:

@@ -16,13 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.bf16 import PRECISIONS
 from ..core.debug_view import draw_matches
-from ..core.detectors import DETECTORS
 from ..core.geometry import Camera
 from ..core.model import load_model
-from ..core.pipeline import Frontend
+from ..core.pipeline import Frontend, selector_name
 from ..core.planes import NOTE as PLANE_NOTE
+from ..core.settings import for_tool
 from ..interface.framecheck import FrameChecks
 from ..interface.imgconv import MAX_PIXELS
 from ..interface.params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
@@ -30,12 +29,11 @@ from ..io.bags import BagError, BagReader, Frame, bag_ground_truth, choose_topic
 from ..io.datasets import read_camera_yaml
 from ..io.mcap_out import McapOutput
 from ..io.outputs import not_a_folder, not_an_input, not_someone_elses, output_file, output_folder, write_json
-from ..io.trajectory import Trajectory, parse_pose, read_tum
-from .cli import bounded, file_path, node_value
+from ..io.trajectory import Trajectory, read_tum
 from .report import PLOTS, print_scores, print_summary, print_tracks, write_plots
 from .scoring import Run, truth_missed, window_missed
 
-BASELINE = {"detector": "sift", "selector": "ratio+magsac"}
+BASELINE = {"detector": "sift", "pose_estimator": "classic"}
 
 
 class Notes:
@@ -117,7 +115,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     """
     frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded, window=window,
                             max_pixels=max_pixels)
-    run = Run(fe.config["selector"])
+    run = Run(selector_name(fe.config["pose_estimator"]))
     notes = Notes(log)
     gate = _Gate(notes, camera, fe.config["time_jump_s"])
     n_frames, overlay = 0, None
@@ -158,84 +156,17 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     return run, n_frames, overlay
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """CLI options of ``nmnet replay``."""
-    p.add_argument("bag", type=Path, help=".bag, .db3 or .mcap file, a ROS 2 bag directory, or a folder of a ROS 1 "
-                   "recording's parts (rosbag record --split)")
-    p.add_argument("--out", type=file_path, required=True, help="output .mcap with matches and relative poses")
-    p.add_argument("--gt", type=Path, default=None, help="ground truth as a TUM file (else the bag's ground-truth topic, "
-                   "if any)")
-    p.add_argument("--gt-camera", type=gt_camera, default=None, metavar="'X Y Z QX QY QZ QW'",
-                   help="the camera's pose (optical frame: z forward, x right, y down) in the frame the ground truth "
-                   "tracks, when that is a body (a motion-capture marker set, base_link), not the camera")
-    p.add_argument("--json", type=file_path, default=None, help="write the summary as JSON")
-    p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots, named errors.png, trajectory.png, "
-                   "matches.png (default: --out's folder, named after it: OUT_errors.png, ...)")
-    p.add_argument("--image-topic", default=None, help="the frames' topic (default: the bag's only image topic, the raw "
-                   "one of a camera's transports)")
-    p.add_argument("--info-topic", default=None, help="the camera_info topic (default: the one beside the image topic)")
-    p.add_argument("--gt-topic", default=None, help="the ground-truth topic (a pose, odometry or transform message; "
-                   "with --gt-tf, the TFMessage topic, default /tf)")
-    p.add_argument("--gt-tf", type=gt_frames, default=None, metavar="PARENT[:CHILD]",
-                   help="ground truth from /tf and /tf_static: CHILD's pose in PARENT (CHILD: the frame the images name, "
-                   "their optical frame), chained through the tree as tf2 does (world:camera_optical_frame over motion "
-                   "capture's world -> base_link and the robot's static mount)")
-    p.add_argument("--start", type=seconds, default=None, metavar="SEC",
-                   help="replay from this many seconds after the bag's first frame (by recording time, as ros2 bag play "
-                   "--start-offset)")
-    p.add_argument("--duration", type=seconds, default=None, metavar="SEC", help="replay this many seconds (default: to "
-                   "the end)")
-    p.add_argument("--stamp-source", default=None, choices=("header", "arrival"),
-                   help="a frame's time (the node's stamp_source): its header stamp (default) or its arrival, when the bag "
-                   "recorded it, for a driver that leaves stamps at 0 or stamps on another clock (ground truth keeps its "
-                   "own header stamps)")
-    p.add_argument("--rectified", action="store_true", help="the bag's images are rectified (image_rect): use camera_info's "
-                   "P, without distortion")
-    p.add_argument("--camera", type=Path, default=None, help="calibration as a ROS camera_info YAML (what camera_calibration "
-                   "writes), a Kalibr camchain (the camera whose rostopic is the image topic), a EuRoC sensor.yaml or an "
-                   "OpenCV YAML (its calibration's camera_matrix, or ORB-SLAM's settings), for a bag without camera_info "
-                   "or to use instead of it")
-    p.add_argument("--params-file", type=Path, default=None, metavar="YAML",
-                   help="the node's parameters file (config/nmnet.yaml's form): replay with the settings the node runs; "
-                        "the options below, when given, override it")
-    p.add_argument("--pose-estimator", default=None, choices=tuple(SELECTORS),
-                   help="the node's pose_estimator (default: ratio_magsac; classic runs without the network)")
-    p.add_argument("--selector", default=None, help="instead of --pose-estimator, any of nmnet eval's methods (offline "
-                   "only, unless it is one the node runs)")
-    p.add_argument("--weights", type=Path, default=None, help="NM-Net weights (the node's weights; default: shipped)")
-    p.add_argument("--detector", default=None, choices=sorted(DETECTORS), help="local feature frames (default: hessian-affine-fast)")
-    p.add_argument("--max-keypoints", type=node_value("max_keypoints"), default=None,
-                   help="keypoints per frame (default: 2000)")
-    p.add_argument("--resize-width", type=node_value("resize_width"), default=None,
-                   help="downscale frames wider than this before detection (the node's resize_width; default 0: full "
-                   "resolution)")
-    p.add_argument("--matches-within-px", type=node_value("matches_within_px"), default=None, metavar="PX",
-                   help="record every match within this Sampson distance of the pose, not only its inliers (the "
-                   "node's matches_within_px; default 0: the inliers)")
-    p.add_argument("--nmnet-precision", "--precision", dest="precision", default=None, choices=PRECISIONS,
-                   help="NM-Net arithmetic (the node's nmnet_precision; default auto: bfloat16 where the CPU has it natively)")
-    p.add_argument("--debug-images", action="store_true", help="also record the match overlay images")
-    p.add_argument("--baseline", action="store_true", help="also run SIFT + ratio + MAGSAC++ on the same frames and print both")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar (there is none when stderr is no terminal)")
-    p.add_argument("--live", action="store_true", help="play the bag onto ROS 2 topics into the node (own process) and record it")
-    p.add_argument("--rate", type=playback_rate, default=1.0, help="live mode: playback speed factor")
-
-
-FLAGS = {"weights": "weights", "detector": "detector", "max_keypoints": "max_keypoints", "resize_width": "resize_width",
-         "matches_within_px": "matches_within_px", "precision": "nmnet_precision",
-         "stamp_source": "stamp_source", "pose_estimator": "pose_estimator"}  # replay option -> the node parameter it sets
-
-
 NODE_ESTIMATORS = {selector: estimator for estimator, selector in SELECTORS.items()}  # selector -> pose_estimator
 
 
 def given_options(args: argparse.Namespace) -> dict:
     """The node parameters the command line sets (options given; ``--rectified`` only when present; a --selector the
     node runs as its ``pose_estimator``)."""
-    given = {name: str(v) if isinstance(v, Path) else v for flag, name in FLAGS.items() if (v := getattr(args, flag)) is not None}
-    if args.selector in NODE_ESTIMATORS:
-        given["pose_estimator"] = NODE_ESTIMATORS[args.selector]
-    return {**given, "rectified": True} if args.rectified else given
+    given = {s.name: str(v) if isinstance(v, Path) else v for s in for_tool("replay")
+             if (v := getattr(args, s.name)) is not None}
+    if given.get("pose_estimator") in NODE_ESTIMATORS:  # a selector the node runs, by eval's name
+        given["pose_estimator"] = NODE_ESTIMATORS[given["pose_estimator"]]
+    return given
 
 
 def node_params(args: argparse.Namespace) -> dict:
@@ -245,33 +176,12 @@ def node_params(args: argparse.Namespace) -> dict:
     return {**params, **given_options(args)}
 
 
-def gt_camera(text: str) -> np.ndarray:
-    """``--gt-camera``'s value as a 4x4 pose; argparse names the option and the value when it is not one."""
-    try:
-        return parse_pose(text)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(str(e)) from e
-
-
-playback_rate = bounded(float, 0.0, "a speed factor > 0 (1 = as recorded, 0.5 = half speed)", strict=True)  # --rate
-seconds = bounded(float, 0.0, "seconds, a number >= 0")  # --start, --duration
-
-
 def replay_window(args: argparse.Namespace) -> tuple[float, float] | None:
     """The part of the bag ``--start`` and ``--duration`` ask for, in seconds after its first frame (None: all)."""
     if args.start is None and args.duration is None:
         return None
     start = args.start or 0.0
     return start, start + args.duration if args.duration is not None else float("inf")
-
-
-def gt_frames(text: str) -> tuple[str, str]:
-    """``--gt-tf``'s value, PARENT[:CHILD], as two frame names ("" for a CHILD not given: the images' frame)."""
-    parent, sep, child = text.partition(":")
-    if not parent.strip("/") or sep and not child.strip("/"):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected PARENT or PARENT:CHILD, frame names (e.g. world, or "
-                                         "world:camera_optical_frame)")
-    return parent, child
 
 
 def ground_truth(reader: BagReader, args: argparse.Namespace, image_topic: str) -> Trajectory | None:
@@ -320,9 +230,6 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay``: offline through the front end here, or ``--live`` through the node."""
-    if args.selector is not None and args.pose_estimator is not None:
-        raise ValueError(f"--selector {args.selector} and --pose-estimator {args.pose_estimator} name the same setting: "
-                         "give one")
     reader = BagReader(args.bag)  # a missing or unreadable bag stops here
     plots_dir, plots_prefix = check_outputs(args, [reader.path, *reader.files, args.gt, args.camera, args.params_file,
                                                    args.weights])
@@ -333,8 +240,8 @@ def main(args: argparse.Namespace) -> int:
 
         require_ros()  # no ROS here: stop, naming the package, before the output file is made
         chosen = live_topics(reader, **topics)  # likewise a ROS 1 bag, a topic it lacks
-        if args.selector is not None and args.selector not in NODE_ESTIMATORS:
-            raise ValueError(f"--selector {args.selector}: the node runs {', '.join(NODE_ESTIMATORS)} (its pose_estimator); "
+        if params["pose_estimator"] not in SELECTORS:
+            raise ValueError(f"--pose-estimator {params['pose_estimator']}: the node runs {', '.join(SELECTORS)}; "
                              "replay without --live for the others")
     else:
         chosen = choose_topics(reader, **topics)  # a topic the bag lacks stops before the output file
@@ -345,8 +252,6 @@ def main(args: argparse.Namespace) -> int:
             load_model(params["weights"])  # the node would stop on it; stop before the output file is made
         return main_live(args, reader, McapOutput(args.out, pose_sigmas(params)), camera, params, truth, chosen)
     cfg = frontend_config(params)
-    if args.selector is not None:
-        cfg["selector"] = args.selector
     fe = Frontend(None, cfg)  # bad weights stop here, before the output file is made
     base_fe = Frontend(None, {**BASELINE, "max_keypoints": cfg["max_keypoints"],
                               "resize_width": cfg["resize_width"]}) if args.baseline else None
@@ -371,8 +276,6 @@ def main(args: argparse.Namespace) -> int:
         print(f"output: {args.out} ({out.count} messages)")
         return 130
     summary = {**runs[0].summary(n), "parameters": params}  # what it ran with, as the node's parameters
-    if args.selector is not None:
-        summary["selector"] = args.selector
     print_summary(summary, runs[0].name)
     if len(runs) > 1:
         summary["baseline"] = runs[1].summary(n)

@@ -27,45 +27,28 @@ import cv2
 import numpy as np
 import torch
 
-from ..core.detectors import DEFAULT_DETECTOR, DETECTORS, make_detector
-from ..core.features import DEFAULT_CONFIG as FEATURE_DEFAULTS
+from ..core.detectors import make_detector
 from ..core.geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
 from ..core.metrics import prf
 from ..core.model import NEIGHBORS, NMNet, WeightsError, load_model, network_input
 from ..core.neighbors import mine_neighbors
+from ..core.settings import FRONTEND_DEFAULTS
 from ..io.cache import FeatureCache
-from ..io.datasets import FOLDERS_READ, LABEL_THRESHOLD, Sequence, pose_labels
+from ..io.datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from ..io.outputs import output_folder, write_json, written_by
 from ..io.pairs import PairData, load_pairs, parse_seq_spec, shared_frames
-from .cli import gaps, node_value, whole
+from .options import MAX_ROLL_DEG, MIN_THINNED_RATIO, TRAIN_DEFAULTS
 
 DEFAULT_CONFIG: dict = {
-    "variant": "nmnet",  # or "nmnet-sp"
-    "epochs": 12,
-    "steps_per_epoch": 40,
-    "batch": 16,
-    "num_corr": 1000,
-    "lr": 1e-3,
-    "seed": 0,
+    **TRAIN_DEFAULTS,
     "gaps": (1, 2, 3, 4, 5, 6, 7, 8, 9, 10),
-    "max_val_pairs": 60,
     "min_inliers": 5,
-    "device": "cpu",  # "cuda" trains on a GPU; neighbours are always mined on the CPU
-    "workers": 1,  # threads preparing a batch (neighbour mining releases the GIL)
-    "detector": DEFAULT_DETECTOR,  # local feature frames: the node's (the shipped steps 0-2 used "hessian-affine")
-    "max_keypoints": FEATURE_DEFAULTS["max_keypoints"],  # keypoints per frame: the node's max_keypoints
-    "label_threshold": LABEL_THRESHOLD,  # inlier when the squared symmetric epipolar distance is below (paper: 1e-4)
+    "detector": FRONTEND_DEFAULTS["detector"],  # local feature frames: the node's (the shipped steps 0-2 used "hessian-affine")
+    "max_keypoints": FRONTEND_DEFAULTS["max_keypoints"],  # keypoints per frame: the node's max_keypoints
     "init": None,  # checkpoint to start from (fine-tuning); None = random initialisation
     "augment": False,  # label-preserving pair augmentation (see ``draw_augmentation``)
-    "thin_inliers": 0.0,  # probability that a sample keeps only part of its inliers (see ``sample_correspondences``)
-    "turn_deg": 0.0,  # turn the second camera about its centre by up to this many degrees (see ``turn_camera``); 0 = off
-    "balance": 0.0,  # 0 = every training pair equally often; 1 = every training folder equally often (see ``pair_weights``)
     "ratio_input": False,  # give the network each match's descriptor distance ratio as a fifth input (see ``_init_model``)
-    "ess_loss": 0.0,  # weight of the essential-matrix regression term (see ``essential_loss``); 0 = the paper's loss
 }
-
-MAX_ROLL_DEG = 10.0  # per-image camera roll drawn from +-this when augmenting
-MIN_THINNED_RATIO = 0.05  # lowest inlier ratio a thinned sample is given
 MAX_TURN_DEG = 60.0  # --turn-deg above this would turn most views out of the image
 
 
@@ -520,50 +503,6 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
                "train_minutes": (time.time() - t_start) / 60, "epochs": c["epochs"], **calibrate(out_dir, val_pairs, log)}
     write_json(out_dir / "summary.json", summary)
     return summary
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """CLI options of ``nmnet train``."""
-    p.add_argument("--train", nargs="+", required=True, metavar="SEQ[:a-b]",
-                   help=f"training sequence folders (optional frame range): {FOLDERS_READ}")
-    p.add_argument("--val", nargs="+", required=True, metavar="SEQ[:a-b]", help="validation sequence folders")
-    p.add_argument("--out", type=Path, required=True, help="output folder for checkpoints")
-    p.add_argument("--variant", choices=sorted(NEIGHBORS), default=DEFAULT_CONFIG["variant"],
-                   help="nmnet: compatibility neighbours (the paper's, shipped); nmnet-sp: spatial neighbours")
-    for key, what in (("epochs", "passes of --steps-per-epoch batches, each followed by validation"),
-                      ("steps_per_epoch", "optimiser steps per epoch"), ("batch", "pairs per step"),
-                      ("num_corr", "correspondences drawn per training pair"), ("seed", "random seed (same seed, same run)"),
-                      ("max_val_pairs", "validation pairs used at most (evenly spaced)")):
-        p.add_argument("--" + key.replace("_", "-"), type=whole(0 if key == "seed" else 1), default=DEFAULT_CONFIG[key],
-                       help=what)
-    p.add_argument("--lr", type=float, default=DEFAULT_CONFIG["lr"], help="Adam's learning rate")
-    p.add_argument("--device", default=DEFAULT_CONFIG["device"], help="torch device for the network, e.g. cpu or cuda")
-    p.add_argument("--workers", type=int, default=DEFAULT_CONFIG["workers"], help="threads mining neighbours for a batch")
-    p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
-    p.add_argument("--detector", default=DEFAULT_CONFIG["detector"], choices=sorted(DETECTORS),
-                   help="local feature frames to train on (default: the node's; use the one your node runs)")
-    p.add_argument("--max-keypoints", type=node_value("max_keypoints"), default=DEFAULT_CONFIG["max_keypoints"],
-                   help="keypoints per frame (the node's max_keypoints: train at the count the node runs)")
-    p.add_argument("--label-threshold", type=float, default=DEFAULT_CONFIG["label_threshold"],
-                   help="inlier label: squared symmetric epipolar distance below this, normalised coordinates")
-    p.add_argument("--init", type=Path, default=None, help="checkpoint to start from (fine-tuning)")
-    p.add_argument("--cache", type=Path, default=None, help="feature cache folder (default ~/.cache/nmnet_ros)")
-    p.add_argument("--augment", action="store_true",
-                   help=f"augment training pairs: swap the images, mirror, roll each camera by up to {MAX_ROLL_DEG:g} degrees")
-    p.add_argument("--thin-inliers", type=float, default=DEFAULT_CONFIG["thin_inliers"], metavar="P",
-                   help="probability that a training sample drops part of its inliers (inlier ratio drawn between "
-                        f"{100 * MIN_THINNED_RATIO:g} %% and the pair's own); 0 = off")
-    p.add_argument("--turn-deg", type=float, default=DEFAULT_CONFIG["turn_deg"], metavar="DEG",
-                   help="turn each sample's second camera about its centre by up to DEG degrees (pan/tilt; "
-                        "labels recomputed, matches turned out of the image dropped); 0 = off")
-    p.add_argument("--ratio-input", action="store_true",
-                   help="give the network each match's descriptor distance ratio as a fifth input (not in the paper)")
-    p.add_argument("--ess-loss", type=float, default=DEFAULT_CONFIG["ess_loss"], metavar="W",
-                   help="add W x the essential-matrix regression loss of Yi et al. 2018 (not in the NM-Net paper); 0 = off")
-    p.add_argument("--balance", type=float, default=DEFAULT_CONFIG["balance"], metavar="B",
-                   help="share of the samples per --train folder: proportional to its pair count ** (1 - B); "
-                        "0 = every pair equally often, 1 = every folder equally often")
 
 
 def main(args: argparse.Namespace) -> int:
