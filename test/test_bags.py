@@ -27,8 +27,8 @@ from nmnet_ros.io.bags import (
     tf_ground_truth,
     typestore,
 )
-from nmnet_ros.tools.options import SAMPLE_BAG
 from nmnet_ros.tools.make_bag import make_bag
+from nmnet_ros.tools.options import SAMPLE_BAG
 
 from .conftest import ROOT, data_dir, planar_views
 
@@ -288,7 +288,7 @@ def test_an_interrupted_make_bag_leaves_a_readable_bag_of_the_frames_written(tmp
     out = tmp_path / out
     written = (out / "bag.mcap") if fmt == "mcap" else out
     with open(tmp_path / "log", "w") as log:
-        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", "make-bag", str(data_dir("kitti-07")), str(out),
+        proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", "make-bag", str(data_dir("kitti-07")), "--out", str(out),
                                  "--format", fmt], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True,
                                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         t_end = time.monotonic() + 120

@@ -450,7 +450,7 @@ def test_images_resized_from_the_calibration_get_k_scaled_and_another_size_is_re
                  str(tmp_path / "cache")]) == 0
     assert f"warning: {half.size_note}" in capsys.readouterr().err
     out = tmp_path.with_name(tmp_path.name + "_out")  # beside the sequence folder: no tool writes into its input
-    assert main(["make-bag", f"{tmp_path}:0-1", str(out / "bag")]) == 0  # make-bag too: it writes the fitted K
+    assert main(["make-bag", f"{tmp_path}:0-1", "--out", str(out / "bag")]) == 0  # make-bag too: it writes the fitted K
     assert f"warning: {half.size_note}" in capsys.readouterr().err
 
     cv2.imwrite(str(tmp_path / "images" / full.paths[2].name), full.image(2))  # one frame of another size

@@ -99,6 +99,15 @@ def difference_lines(errors: dict[str, np.ndarray], reference: str) -> list[str]
     return lines
 
 
+def reference_differences(errors: dict[str, np.ndarray], reference: str) -> dict:
+    """For the JSON: the ``reference`` and every other method's AUC@5 minus its, with the 95 % interval."""
+    if reference not in errors:
+        return {}
+    diffs = {name: dict(zip(("auc5", "low", "high"), paired_auc_difference(e, errors[reference]), strict=True))
+             for name, e in errors.items() if name != reference}
+    return {"reference": reference, "auc5_vs_reference": diffs}
+
+
 def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None) -> str:
     """AUC@5 of every method on each sequence (``groups[k]`` names pair k's), as a markdown table.
 
@@ -227,7 +236,7 @@ def main(args: argparse.Namespace) -> int:
     if len(set(groups)) > 1:
         print("\n" + per_sequence_table(res["errors"], groups, args.reference))
     if args.json:  # before the plot: the numbers are what a script reads
-        write_json(args.json, {"methods": res["metrics"]})
+        write_json(args.json, {"methods": res["metrics"], **reference_differences(res["errors"], args.reference)})
     plot_curves(res["errors"], plot)
     print(f"\nplot: {plot}")
     return 0

@@ -1,0 +1,200 @@
+"""The published numbers: each table of the README and the docs is one named experiment here.
+
+``python -m benchmarks run NAME`` runs an experiment (an ``nmnet`` command) and stores its result with its
+provenance (command, commit, weights checksum, settings, machine, date) in ``benchmarks/results/NAME.json``;
+``python -m benchmarks render`` writes the tables into the pages, between ``<!-- benchmark: NAME -->`` and
+``<!-- /benchmark -->``. ``test/test_benchmarks.py`` checks that every published table is the rendering of its
+stored result, so a number cannot drift from its source.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import platform
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+DATA = ROOT.parent / "shared" / "data"  # the maintainers' datasets (not shipped; see docs/data-format.md)
+SAMPLE = ROOT / "nmnet_ros" / "sample" / "kitti07_120-159"
+WEIGHTS = ROOT / "nmnet_ros" / "weights" / "nmnet.pt"
+PAGES = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
+VALIDATION = (f"{DATA}/kitti-07:120-159", f"{DATA}/strecha-herz-jesus-p25")  # never trained on (the model card)
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One published table: what it measures, the ``nmnet`` arguments that measure it ({out}: the JSON it writes,
+    {tmp}: a scratch folder), and how its stored result renders."""
+
+    what: str
+    args: tuple[str, ...]
+    render: Callable[[dict], str]
+    needs_data: bool = False
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{x:.1f}"
+
+
+def render_sample_bag(r: dict) -> str:
+    """The default front end beside the classic pipeline on the bundled sample bag."""
+    rows = ["| pipeline (sample bag, 39 pairs) | AUC@5 / 10 / 20 | median rotation / direction error (deg) | frames/s |",
+            "|---|---|---|---|"]
+    for name, s in (("learned: NM-Net + ratio + MAGSAC++ (default)", r), ("classic: SIFT + ratio + MAGSAC++", r["baseline"])):
+        rows.append(f"| {name} | {_pct(s['auc5'])} / {_pct(s['auc10'])} / {_pct(s['auc20'])} | "
+                    f"{s['median_rot_deg']:.3f} / {s['median_trans_deg']:.2f} | {s['fps']:.1f} |")
+    return "\n".join(rows)
+
+
+METHOD_NAMES = {"nmnet+ratio+magsac": "NM-Net + ratio + MAGSAC++ (default)", "ratio+magsac": "classic: ratio + MAGSAC++",
+                "nmnet+magsac": "NM-Net + MAGSAC++", "magsac": "MAGSAC++ alone", "oracle": "oracle (true inliers + MAGSAC++)",
+                "nmnet": "NM-Net alone (weighted eight-point)", "ratio": "ratio test alone"}
+
+
+def render_validation(r: dict) -> str:
+    """Every method on the validation split: classification (P/F) and pose (AUC, difference to the reference)."""
+    ref = r.get("reference")
+    rows = [f"| method | P | F | AUC@5 (minus {ref}'s [95 %]) | AUC@10 | AUC@20 | median rot / dir (deg) |",
+            "|---|---|---|---|---|---|---|"]
+    for name, m in r["methods"].items():
+        d = r.get("auc5_vs_reference", {}).get(name)
+        diff = f" ({d['auc5']:+.1f} [{d['low']:+.1f}, {d['high']:+.1f}])" if d else ""
+        rows.append(f"| {METHOD_NAMES.get(name, name)} | {m['precision']:.1f} | {m['f1']:.1f} | {m['auc5']:.1f}{diff} | "
+                    f"{m['auc10']:.1f} | {m['auc20']:.1f} | {m['median_rot_deg']:.2f} / {m['median_trans_deg']:.2f} |")
+    pairs = next(iter(r["methods"].values()))["pairs"]
+    return "\n".join(rows) + f"\n\n{pairs} pairs."
+
+
+def render_speed(r: dict) -> str:
+    """Per-stage times and rates, and the ratio to the classic pipeline timed in the same process."""
+    rows = ["| frames, keypoints | detect | match | neighbours | NM-Net | pose | pipelined Hz | classic (SIFT) Hz | ratio |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    for size, s in r["pipeline"].items():
+        if "detect" not in s:
+            continue
+        frames, n = size.rsplit("_N", 1)
+        rows.append(f"| {frames.replace('native', 'KITTI 1241x376')}, {n} | {s['detect']['median']:.0f} | "
+                    f"{s['match']['median']:.0f} | {s['neighbors']['median']:.0f} | {s['nmnet']['median']:.0f} | "
+                    f"{s['pose']['median']:.0f} | {s['end_to_end_hz']:.1f} | {s['baseline_hz']:.1f} | "
+                    f"{s['end_to_end_hz'] / s['baseline_hz']:.2f}x |")
+    return "\n".join(rows) + "\n\nStage times: median ms, serial, as the node's stages run them."
+
+
+def render_neighbors(r: dict) -> str:
+    """The paper's Fig. 3: inliers among a true match's neighbours, compatibility against spatial."""
+    return r["table"] + (f"\n\nCompatibility neighbours hold more inliers than spatial ones in "
+                         f"{r['compat_wins_percent']:.0f} % of the {r['pairs']} pairs.")
+
+
+EXPERIMENTS: dict[str, Experiment] = {
+    "sample-bag": Experiment(
+        "the bundled sample bag offline, the default front end beside SIFT + ratio + MAGSAC++ on the same frames",
+        ("replay", str(SAMPLE), "--out", "{tmp}/out.mcap", "--json", "{out}", "--baseline", "--no-progress",
+         "--nmnet-precision", "float32"), render_sample_bag),
+    "validation": Experiment(
+        "every selector on the validation split (pairs at gaps 1-10 of two scenes never trained on)",
+        ("eval", *VALIDATION, "--gaps", "1-10", "--methods", "nmnet,ratio,magsac,ratio+magsac,nmnet+magsac,"
+         "nmnet+ratio+magsac,oracle", "--nmnet-precision", "float32", "--json", "{out}", "--plots", "{tmp}"),
+        render_validation, needs_data=True),
+    "speed": Experiment(
+        "per-stage times and the pipelined rate on this machine, beside the classic pipeline in the same process",
+        ("bench", "--pipeline", "--json", "{out}"), render_speed),
+    "neighbors": Experiment(
+        "the paper's Fig. 3 on KITTI-07: inlier ratio among a true match's neighbours",
+        ("neighbors", f"{DATA}/kitti-07", "--gaps", "1-10", "--stride", "10", "--json", "{out}"), render_neighbors,
+        needs_data=True),
+}
+
+
+def machine() -> dict:
+    """The machine a result was measured on."""
+    cpu = platform.processor()
+    try:
+        cpu = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                   if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "system": platform.platform(), "python": platform.python_version()}
+
+
+def _git(*args: str) -> str:
+    return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=False).stdout.strip()
+
+
+def provenance(command: list[str], seconds: float) -> dict:
+    """Where a result came from: enough to rerun it and to judge it."""
+    from nmnet_ros.core.settings import FRONTEND_DEFAULTS
+    from nmnet_ros.ros.entry import version
+
+    return {"command": "nmnet " + " ".join(command), "version": version(), "commit": _git("rev-parse", "HEAD"),
+            "uncommitted_changes": bool(_git("status", "--porcelain", "--untracked-files=no")),
+            "weights_sha256": hashlib.sha256(WEIGHTS.read_bytes()).hexdigest(), "settings": FRONTEND_DEFAULTS,
+            "machine": machine(), "date": datetime.now(UTC).isoformat(timespec="seconds"),
+            "seconds": round(seconds, 1)}
+
+
+def run(name: str) -> Path:
+    """Run experiment ``name`` and store its result with its provenance; returns the stored file."""
+    exp = EXPERIMENTS[name]
+    if exp.needs_data and not DATA.is_dir():
+        raise SystemExit(f"{name}: needs the datasets at {DATA}")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "result.json"
+        args = [a.format(out=out, tmp=tmp) for a in exp.args]
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", *args], cwd=ROOT, check=True)
+        result = json.loads(out.read_text())
+        shown = [a.replace(str(ROOT.parent / "shared"), "../shared").replace(str(ROOT) + "/", "")
+                 .replace(tmp, "OUT").replace(str(out), "OUT/result.json") for a in args]
+        stored = {"experiment": name, "what": exp.what, "provenance": provenance(shown, time.perf_counter() - t0),
+                  "result": {k: v for k, v in result.items() if k != "written_by"}}
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / f"{name}.json"
+    path.write_text(json.dumps(stored, indent=1) + "\n")
+    return path
+
+
+BLOCK = re.compile(r"(<!-- benchmark: (?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /benchmark -->)", re.S)
+
+
+def rendered(name: str) -> str:
+    """Experiment ``name``'s table from its stored result, with where it came from."""
+    stored = json.loads((RESULTS / f"{name}.json").read_text())
+    p = stored["provenance"]
+    return (EXPERIMENTS[name].render(stored["result"]) + f"\n\n<sub>{stored['what'].capitalize()}. Measured on "
+            f"{p['machine']['cpu']} ({p['machine']['cores']} cores) by `{p['command']}`; stored with its provenance in "
+            f"`benchmarks/results/{name}.json`, rerun with `python -m benchmarks run {name}`.</sub>\n")
+
+
+def render_page(text: str) -> str:
+    """``text`` with every benchmark block replaced by its stored result's rendering."""
+    return BLOCK.sub(lambda m: m.group(1) + rendered(m.group("name")) + m.group(4), text)
+
+
+def main(argv: list[str]) -> int:
+    """``python -m benchmarks run NAME...|all`` or ``python -m benchmarks render``."""
+    if argv[:1] == ["run"] and len(argv) > 1:
+        for name in (EXPERIMENTS if argv[1:] == ["all"] else argv[1:]):
+            print(f"{name}: {run(name)}")
+        return 0
+    if argv == ["render"]:
+        for page in PAGES:
+            text = page.read_text()
+            if (new := render_page(text)) != text:
+                page.write_text(new)
+                print(f"rendered {page.relative_to(ROOT)}")
+        return 0
+    print(f"usage: python -m benchmarks run NAME...|all  (names: {', '.join(EXPERIMENTS)}) | python -m benchmarks render",
+          file=sys.stderr)
+    return 2
