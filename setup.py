@@ -8,7 +8,7 @@ PACKAGE = "nmnet_ros"
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
+    version="0.2.0",
     packages=find_packages(exclude=["test"]),
     package_data={PACKAGE: ["weights/*.pt", "weights/*.md", "sample/*", "sample/*/*", "*.xml"]},
     data_files=[
@@ -37,7 +37,7 @@ setup(
         "ros": [f"ros-{name}; sys_platform == 'linux' and platform_machine == 'x86_64'" for name in
                 ("rclpy[fastrtps]>=9.1,<10", "sensor-msgs>=5.5,<6", "geometry-msgs>=5.5,<6", "std-msgs>=5.5,<6",
                  "std-srvs>=5.5,<6", "diagnostic-msgs>=5.5,<6")],
-        "test": ["pytest>=8", "ruff>=0.6"],
+        "test": ["pytest>=8", "ruff>=0.6", "mkdocs>=1.6,<2"],
     },
     zip_safe=False,
     maintainer="nmnet_ros maintainers",

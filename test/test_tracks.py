@@ -185,8 +185,8 @@ def test_a_long_streams_tracks_are_counted_as_they_come_as_a_full_count_would():
     assert lengths.summary()["longest"] >= 10 and track_summary(messages) == lengths.summary()
 
 
-def test_the_readmes_back_end_snippet_collects_the_tracks_of_a_recording(tmp_path):
-    """The README's "In a back end" code, run as written on the ~/matches of a replay's output file: one entry per
+def test_the_docs_back_end_snippet_collects_the_tracks_of_a_recording(tmp_path):
+    """The docs' back-end code (docs/node.md), run as written on the ~/matches of a replay's output file: one entry per
     track, each with the frames it is seen in (its first message brings two), as the replay's summary counts them,
     every observation stamped (the first frame's message, empty, gives the stamp the next message relates to)."""
     import re
@@ -197,7 +197,8 @@ def test_the_readmes_back_end_snippet_collects_the_tracks_of_a_recording(tmp_pat
 
     from .conftest import ROOT
 
-    block = re.search(r"\*\*In a back end\*\*.*?```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
+    block = re.search(r"### Reading the outputs in a back end.*?```python\n(.*?)```", (ROOT / "docs" / "node.md").read_text(),
+                      re.S).group(1)
     seq = Sequence.load(data_dir("kitti-07"))
     fe, out, ids = Frontend(seq.camera, {}), McapOutput(tmp_path / "out.mcap"), []
     for i in range(8):  # as the node and the replay: a message for every frame, the first's empty
@@ -206,7 +207,7 @@ def test_the_readmes_back_end_snippet_collects_the_tracks_of_a_recording(tmp_pat
         ids.append(r.track_ids[r.mask])
     out.close()
     scope: dict = {}
-    exec(block, scope)  # noqa: S102 - the README's own code
+    exec(block, scope)  # noqa: S102 - the docs' own code
     messages = [m.msg for m in BagReader(tmp_path / "out.mcap").messages({"/nmnet_node/matches"})]
     for msg in messages:
         scope["on_matches"](msg)

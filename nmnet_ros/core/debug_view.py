@@ -1,4 +1,4 @@
-"""Match overlay for ~/debug_image and the README pictures: selected matches green, rejected red."""
+"""Match overlay for ~/debug_image and the docs pictures: selected matches green, rejected red."""
 
 from __future__ import annotations
 

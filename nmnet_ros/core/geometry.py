@@ -369,7 +369,7 @@ def refine_pose(pose: PoseEstimate, x0n: np.ndarray, x1n: np.ndarray, sigma: flo
     A robust estimator's answer comes from its best minimal sample and local optimisation on the
     inliers of one threshold; a smooth robust cost over every candidate match (``sigma`` in
     normalised units, e.g. the inlier threshold) weighs each by how well it fits; measured +0.5 to
-    +3.5 pose AUC@5 on the validation pairs (see README). Only steps that lower the cost are taken,
+    +3.5 pose AUC@5 on the validation pairs. Only steps that lower the cost are taken,
     so the result is never worse than the input by that cost; a degenerate system (NaN input, a
     singular step) returns the best pose so far. Mask and inliers are kept.
     """

@@ -1,7 +1,7 @@
 """DDS facts the node and the live player share (no ROS imports).
 
 Measured with the ROS 2 Kilted wheels (Fast DDS 3.2.3) on one machine, 20 frames at 5 Hz, with
-``FASTDDS_BUILTIN_TRANSPORTS=LARGE_DATA`` on both ends (``python docs/analysis/dds_large_frames.py``):
+``FASTDDS_BUILTIN_TRANSPORTS=LARGE_DATA`` on both ends:
 a best-effort subscription received every frame up to 0.52 MB, but 6-11 of 20 at 0.6 MB and 0-7 of
 20 at 1.4 MB, from a best-effort or a reliable publisher (Fast DDS's shared-memory segment is
 512 KB). A reliable subscription to a reliable publisher received 20 of 20, and so did a best-effort

@@ -567,7 +567,7 @@ def main(args: list[str] | None = None) -> int:
         if rclpy.ok():     # between two waits of the executor (the race of ros2/ros2cli#854); anything else is a real failure
             raise
     except (ValueError, ParameterException) as e:  # rclpy checks types and ranges when the node declares them
-        print(f"nmnet_node: error: {e} (parameters, types and ranges: README or `ros2 param describe`)", file=sys.stderr)
+        print(f"nmnet_node: error: {e} (parameters, types and ranges: nmnet_node --help)", file=sys.stderr)
         return 2
     finally:
         if node is not None:
