@@ -152,16 +152,15 @@ def _git(*args: str) -> str:
     return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=False).stdout.strip()
 
 
-def provenance(command: list[str], seconds: float) -> dict:
-    """Where a result came from: enough to rerun it and to judge it."""
+def provenance() -> dict:
+    """Where a result comes from (taken before it runs): enough to rerun it and to judge it."""
     from nmnet_ros.core.settings import FRONTEND_DEFAULTS
     from nmnet_ros.ros.entry import version
 
-    return {"command": "nmnet " + " ".join(command), "version": version(), "commit": _git("rev-parse", "HEAD"),
+    return {"version": version(), "commit": _git("rev-parse", "HEAD"),
             "uncommitted_changes": bool(_git("status", "--porcelain", "--untracked-files=no")),
             "weights_sha256": hashlib.sha256(WEIGHTS.read_bytes()).hexdigest(), "settings": FRONTEND_DEFAULTS,
-            "machine": machine(), "date": datetime.now(UTC).isoformat(timespec="seconds"),
-            "seconds": round(seconds, 1)}
+            "machine": machine(), "date": datetime.now(UTC).isoformat(timespec="seconds")}
 
 
 def run(name: str) -> Path:
@@ -172,12 +171,13 @@ def run(name: str) -> Path:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "result.json"
         args = [a.format(out=out, tmp=tmp) for a in exp.args]
-        t0 = time.perf_counter()
+        source, t0 = provenance(), time.perf_counter()
         subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", *args], cwd=ROOT, check=True)
         result = json.loads(out.read_text())
         shown = [a.replace(str(ROOT.parent / "shared"), "../shared").replace(str(ROOT) + "/", "")
                  .replace(tmp, "OUT").replace(str(out), "OUT/result.json") for a in args]
-        stored = {"experiment": name, "what": exp.what, "provenance": provenance(shown, time.perf_counter() - t0),
+        source = {"command": "nmnet " + " ".join(shown), **source, "seconds": round(time.perf_counter() - t0, 1)}
+        stored = {"experiment": name, "what": exp.what, "provenance": source,
                   "result": {k: v for k, v in result.items() if k != "written_by"}}
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"{name}.json"
