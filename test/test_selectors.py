@@ -663,3 +663,43 @@ def test_eval_and_train_take_the_keypoint_count_the_node_runs(tmp_path):
     assert [p.name.split("-k")[1].split("-")[0] for p in (tmp_path / "cache").iterdir()] == ["300"]
     with pytest.raises(SystemExit, match="2"):  # the node's range, said by argparse
         main(["eval", str(seq), "--max-keypoints", "50"])
+
+
+def test_eval_shows_hard_pairs_by_inlier_ratio_and_gap_and_scores_pairs_without_labels(pairs, tmp_path, cache):
+    """nmnet eval reports every method per putative-inlier-ratio bin and per gap range (table and JSON 'bins'); a
+    pair without a labelled inlier has no P/R/F but its pose is scored; a folder without evaluable pairs among
+    several is a warning naming why, not the end of the run; --max-view-angle admits wider baselines."""
+    import dataclasses
+    import json
+    import subprocess
+    import sys
+
+    from nmnet_ros.io.pairs import select_pairs
+    from nmnet_ros.tools.evaluate import evaluate, gap_bin, pair_bins, ratio_bin
+
+    assert [ratio_bin(x) for x in (5, 10, 19.9, 20, 35, 80)] == ["< 10 %", "10-20 %", "10-20 %", "20-35 %", ">= 35 %",
+                                                                 ">= 35 %"]
+    assert [gap_bin(g) for g in (1, 3, 10, 11, 40)] == ["1-2", "3-5", "6-10", "11-30", ">= 31"]
+    blind = dataclasses.replace(pairs[0], labels=np.zeros_like(pairs[0].labels))  # no labelled inlier
+    res = evaluate([blind], ["ratio+magsac"], {}, {})
+    assert res["metrics"]["ratio+magsac"]["f1"] is None and res["errors"]["ratio+magsac"].shape == (1, 1)
+    assert res["metrics"]["ratio+magsac"]["auc5"] > 0  # its pose, scored against the ground truth
+    assert pair_bins(pairs)["gap"] == ["1-2", "3-5", "3-5"] * 4
+    herz = Sequence.load(data_dir("strecha-herz-jesus-p25"))
+    assert len(select_pairs(herz, tuple(range(1, 11)), max_view_angle=90)) > len(select_pairs(herz, tuple(range(1, 11))))
+    out = tmp_path / "e.json"
+    run = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "eval", f"{data_dir('kitti-07')}:120-130",
+                          f"{data_dir('euroc-v101-cam0')}:0-10", "--gaps", "1,3", "--methods", "ratio+magsac,oracle",
+                          "--cache", str(cache.root), "--json", str(out), "--plots", str(tmp_path)],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "warning: " in run.stderr and "euroc-v101-cam0:0-10: none of its" in run.stderr  # said, and went on
+    assert "| AUC@5 by putative inlier ratio (pairs) |" in run.stdout and "| AUC@5 by frame gap (pairs) | 1-2 (" in run.stdout
+    bins = json.loads(out.read_text())["bins"]
+    n = json.loads(out.read_text())["methods"]["oracle"]["pairs"]
+    for kind in ("inlier_ratio", "gap"):
+        assert sum(b["pairs"] for b in bins[kind].values()) == n
+        assert all("vs_reference" in b["oracle"] and "auc5" in b["ratio+magsac"] for b in bins[kind].values())
+    alone = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "eval", f"{data_dir('euroc-v101-cam0')}:0-10",
+                            "--gaps", "1", "--methods", "ratio", "--cache", str(cache.root)], capture_output=True, text=True)
+    assert alone.returncode == 2 and "no pairs to evaluate" in alone.stderr  # the only folder: an error, as before

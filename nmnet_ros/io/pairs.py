@@ -81,14 +81,15 @@ def select_pairs(seq: Sequence, gaps: tuple[int, ...], frames: range | None = No
     return out
 
 
-def no_pairs_reason(seq: Sequence, spec: str, gaps: tuple[int, ...], frames: range | None = None) -> str:
+def no_pairs_reason(seq: Sequence, spec: str, gaps: tuple[int, ...], frames: range | None = None,
+                    max_view_angle: float = MAX_VIEW_ANGLE_DEG) -> str:
     """Why ``select_pairs`` gave ``spec`` no pairs: its frames make none (at these gaps), or none has what labels need."""
     n = len(seq.pairs(gaps, frames))
     by = "pairs.txt" if seq.pairs_file is not None else f"gaps {','.join(map(str, gaps))}"
     if not n:
         return f"{spec}: its frames make no pairs ({by})"
     return (f"{spec}: none of its {n} frame pairs ({by}) has a ground-truth pose on both frames, motion between them "
-            f"(epipolar labels need a baseline) and views within {MAX_VIEW_ANGLE_DEG:g} degrees")
+            f"(epipolar labels need a baseline) and views within {max_view_angle:g} degrees")
 
 
 def make_pair(seq: Sequence, i: int, j: int, cache: FeatureCache, match_config: dict | None = None,
@@ -108,11 +109,13 @@ def _to_stderr(line: str) -> None:
 
 def load_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, *, stride: int = 1,
                max_pairs: int | None = None, min_inliers: int = 0, label_threshold: float = LABEL_THRESHOLD,
-               skip_empty: bool = False, log: Callable[[str], None] = _to_stderr, tool: str = "eval") -> list[PairData]:
+               skip_empty: bool = False, log: Callable[[str], None] = _to_stderr, tool: str = "eval",
+               max_view_angle: float = MAX_VIEW_ANGLE_DEG) -> list[PairData]:
     """Labelled pairs of every 'PATH[:a-b]', the one loader of eval, train and the studies.
 
     pairs.txt's pairs (within a-b) when the folder has one, else every ``stride``-th frame's pairs at ``gaps``; at
-    most ``max_pairs`` per folder, spread evenly; pairs with fewer than ``min_inliers`` labelled inliers dropped.
+    most ``max_pairs`` per folder, spread evenly; pairs with fewer than ``min_inliers`` labelled inliers dropped, and
+    pairs whose cameras' optical axes are more than ``max_view_angle`` degrees apart.
     The folder's notes go to ``log`` as warnings, then one line per folder naming ``tool``. A folder without pairs
     is a ValueError saying why, or with ``skip_empty`` (training: other folders may have pairs) is a warning.
     """
@@ -122,10 +125,10 @@ def load_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, *, 
         seq = Sequence.load(path)
         for note in seq.notes():
             log(f"warning: {note}")
-        selected = select_pairs(seq, gaps, frames)
+        selected = select_pairs(seq, gaps, frames, max_view_angle)
         chosen = selected if seq.pairs_file is not None else [(i, j) for i, j in selected if i % stride == 0]
         if not chosen:
-            why = no_pairs_reason(seq, spec, gaps, frames) if not selected else (
+            why = no_pairs_reason(seq, spec, gaps, frames, max_view_angle) if not selected else (
                 f"{spec}: none of its pairs starts at a multiple of --stride {stride} (give a smaller one)")
             if not skip_empty:
                 raise ValueError(f"no pairs to evaluate: {why}")

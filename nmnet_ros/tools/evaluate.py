@@ -11,6 +11,7 @@ size of the differences between the best pipelines.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 from pathlib import Path
@@ -50,14 +51,13 @@ def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] 
             sels = [select(c, seed=0) if name in ROBUST else select(c)]
             secs.append(time.perf_counter() - t0)  # one full run; further seeds reuse NM-Net's pass
             sels += [select(c, seed=s) for s in range(1, runs)]
-            prfs += [prf(sel.mask, p.labels) for sel in sels]
+            if p.labels.any():  # P/R/F are undefined without a labelled inlier; the pose is scored all the same
+                prfs += [prf(sel.mask, p.labels) for sel in sels]
             errs.append([pose_error_deg(sel.pose, p.R, p.t) for sel in sels] * (seeds // runs))  # one run stands for all
         e = np.array(errs, np.float64)  # (pairs, seeds, rotation/translation)
         aucs = pose_auc(e.max(2).ravel())
         out[name] = {
-            "precision": float(np.mean([x["precision"] for x in prfs])),
-            "recall": float(np.mean([x["recall"] for x in prfs])),
-            "f1": float(np.mean([x["f1"] for x in prfs])),
+            **{k: float(np.mean([x[k] for x in prfs])) if prfs else None for k in ("precision", "recall", "f1")},
             "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2],
             "median_rot_deg": float(np.median(e[..., 0])), "median_trans_deg": float(np.median(e[..., 1])),
             "pairs": len(pairs), "sec_per_pair": float(np.mean(secs)),
@@ -108,19 +108,76 @@ def reference_differences(errors: dict[str, np.ndarray], reference: str) -> dict
     return {"reference": reference, "auc5_vs_reference": diffs}
 
 
-def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None) -> str:
+RATIO_BINS = ((0, 10), (10, 20), (20, 35), (35, 100))  # putative inlier ratio, %: the hard pairs first
+GAP_BINS = ((1, 2), (3, 5), (6, 10), (11, 30), (31, 10**9))  # frames between a pair's images
+
+
+def _bin_name(lo: float, hi: float, unit: str) -> str:
+    if lo == 0:
+        return f"< {hi}{unit}"
+    return f">= {lo}{unit}" if hi >= (100 if unit else 10**9) else f"{lo}-{hi}{unit}"
+
+
+def ratio_bin(ratio_pct: float) -> str:
+    """The bin of a pair's putative inlier ratio (%), e.g. '< 10 %', '10-20 %'."""
+    lo, hi = next(b for b in RATIO_BINS if ratio_pct < b[1] or b[1] == 100)
+    return _bin_name(lo, hi, " %")
+
+
+def gap_bin(gap: int) -> str:
+    """The bin of a pair's frame gap, e.g. '1-2', '>= 31'."""
+    lo, hi = next(b for b in GAP_BINS if lo_hi(b, gap))
+    return _bin_name(lo, hi, "")
+
+
+def lo_hi(b: tuple[int, int], x: int) -> bool:
+    return b[0] <= x <= b[1]
+
+
+def _bin_order(name: str) -> float:
+    """A bin's place in a table: by its lower bound ('< 10 %' first)."""
+    digits = re.findall(r"\d+", name)
+    return -1.0 if name.startswith("<") else float(digits[0])
+
+
+def pair_bins(pairs: list[PairData]) -> dict[str, list[str]]:
+    """Each pair's bin by putative inlier ratio and by frame gap (pairs.txt pairs: by index distance)."""
+    return {"inlier_ratio": [ratio_bin(100 * float(p.labels.mean()) if len(p.labels) else 0.0) for p in pairs],
+            "gap": [gap_bin(abs(p.j - p.i)) for p in pairs]}
+
+
+def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str) -> dict:
+    """For the JSON: per bin, its pair count and every method's AUC@5 (and difference to ``reference`` [95 %])."""
+    labels = np.asarray(groups, object)
+    out = {}
+    for g in dict.fromkeys(groups):
+        sel = labels == g
+        row: dict = {"pairs": int(sel.sum())}
+        for name, e in errors.items():
+            e_g = np.asarray(e)[sel]
+            row[name] = {"auc5": 100 * pose_auc(e_g.ravel(), (5.0,))[0]}
+            if reference in errors and name != reference:
+                d, lo, hi = paired_auc_difference(e_g, np.asarray(errors[reference])[sel])
+                row[name]["vs_reference"] = {"auc5": d, "low": lo, "high": hi}
+        out[g] = row
+    return out
+
+
+def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None,
+                       title: str = "AUC@5 per sequence (pairs)") -> str:
     """AUC@5 of every method on each sequence (``groups[k]`` names pair k's), as a markdown table.
 
     A mean over several sequences can hide that the methods differ on one and tie on the other;
     with ``reference`` among the methods, the others' cells also give the paired difference to it.
     """
-    names = list(dict.fromkeys(groups))
-    labels = np.asarray(groups)
+    names = sorted(dict.fromkeys(groups), key=_bin_order) if title != "AUC@5 per sequence (pairs)" else \
+        list(dict.fromkeys(groups))
+    labels = np.asarray(groups, object)
     n_pairs = len(next(iter(errors.values())))
     if len(labels) != n_pairs:
         raise ValueError(f"{len(labels)} sequence labels for {n_pairs} pairs")
     head = " | ".join(f"{g} ({np.count_nonzero(labels == g)})" for g in names)
-    lines = [f"| AUC@5 per sequence (pairs) | {head} |", "|---" * (len(names) + 1) + "|"]
+    lines = [f"| {title} | {head} |", "|---" * (len(names) + 1) + "|"]
     for name, e in errors.items():
         cells = []
         for g in names:
@@ -139,7 +196,8 @@ def markdown_table(metrics: dict) -> str:
     lines = ["| method | P | R | F | AUC@5 | AUC@10 | AUC@20 | med. rot ° | med. trans ° | ms/pair |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for name, m in metrics.items():
-        lines.append(f"| {name} | {m['precision']:.1f} | {m['recall']:.1f} | {m['f1']:.1f} | {m['auc5']:.1f} | "
+        p, r, f = ("-" if m[k] is None else f"{m[k]:.1f}" for k in ("precision", "recall", "f1"))
+        lines.append(f"| {name} | {p} | {r} | {f} | {m['auc5']:.1f} | "
                      f"{m['auc10']:.1f} | {m['auc20']:.1f} | {m['median_rot_deg']:.2f} | {m['median_trans_deg']:.2f} | "
                      f"{1000 * m['sec_per_pair']:.1f} |")
     return "\n".join(lines)
@@ -217,10 +275,13 @@ def main(args: argparse.Namespace) -> int:
     if len(set(labels)) < len(labels):  # two folders of the same name (or one given twice): name them in full
         labels = list(args.seqs)
     pairs, groups = [], []
-    for spec, label in zip(args.seqs, labels, strict=True):
-        chosen = load_pairs([spec], args.gaps, cache, stride=args.stride, max_pairs=args.max_pairs)
+    for spec, label in zip(args.seqs, labels, strict=True):  # among several, a folder without pairs is a warning
+        chosen = load_pairs([spec], args.gaps, cache, stride=args.stride, max_pairs=args.max_pairs,
+                            skip_empty=len(args.seqs) > 1, max_view_angle=args.max_view_angle)
         pairs += chosen
         groups += [label] * len(chosen)
+    if not pairs:
+        raise ValueError("no pairs to evaluate in any of the folders (the warnings above say why)")
     res = evaluate(pairs, methods, weights, {**{name: getattr(args, name) for name in SELECTOR_SETTINGS},
                                              "max_iters": args.max_iters},
                    args.seeds)
@@ -235,8 +296,12 @@ def main(args: argparse.Namespace) -> int:
               "that is)")
     if len(set(groups)) > 1:
         print("\n" + per_sequence_table(res["errors"], groups, args.reference))
+    bins = pair_bins(pairs)
+    for kind, title in (("inlier_ratio", "AUC@5 by putative inlier ratio (pairs)"), ("gap", "AUC@5 by frame gap (pairs)")):
+        print("\n" + per_sequence_table(res["errors"], bins[kind], args.reference, title))
     if args.json:  # before the plot: the numbers are what a script reads
-        write_json(args.json, {"methods": res["metrics"], **reference_differences(res["errors"], args.reference)})
+        write_json(args.json, {"methods": res["metrics"], **reference_differences(res["errors"], args.reference),
+                               "bins": {kind: binned(res["errors"], bins[kind], args.reference) for kind in bins}})
     plot_curves(res["errors"], plot)
     print(f"\nplot: {plot}")
     return 0

@@ -46,6 +46,14 @@ def whole(least: int) -> Callable[[str], int]:
     return bounded(int, least, f"a whole number >= {least}")
 
 
+def view_angle(text: str) -> float:
+    """``--max-view-angle``' value: degrees, above 0 and at most 180."""
+    value = bounded(float, 0.0, "degrees, above 0 and at most 180", strict=True)(text)
+    if value > 180:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected degrees, above 0 and at most 180")
+    return value
+
+
 playback_rate = bounded(float, 0.0, "a speed factor > 0 (1 = as recorded, 0.5 = half speed)", strict=True)  # --rate
 seconds = bounded(float, 0.0, "seconds, a number >= 0")  # --start, --duration
 
@@ -229,6 +237,8 @@ def evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
     p.add_argument("--stride", type=whole(1), default=1, help="use every n-th frame as a pair's first frame")
     p.add_argument("--max-pairs", type=whole(1), default=None, help="at most this many pairs per sequence (evenly spread)")
+    p.add_argument("--max-view-angle", type=view_angle, default=40.0, metavar="DEG",
+                   help="leave out pairs whose cameras' optical axes are further apart (wide baselines: up to 180)")
     p.add_argument("--weights-sp", type=Path, default=None, metavar="FILE", help="NM-Net-sp weights (default: shipped)")
     p.add_argument("--json", type=file_path, default=None, help="write {method: metrics} as JSON")
     p.add_argument("--plots", type=Path, default=None, help="folder for the recall-vs-error plot, eval_curves.png "
