@@ -76,6 +76,26 @@ def render_validation(r: dict) -> str:
     return "\n".join(rows) + f"\n\n{pairs} pairs."
 
 
+def render_hard(r: dict) -> str:
+    """The hard validation set: AUC@5 per putative-inlier-ratio bin and over all pairs, with the difference to the
+    classic pipeline and its 95 % interval."""
+    from nmnet_ros.tools.evaluate import bin_order
+
+    bins = sorted(r["bins"]["inlier_ratio"].items(), key=lambda kv: bin_order(kv[0]))
+    head = " | ".join(f"{name} ({b['pairs']})" for name, b in bins)
+    rows = [f"| AUC@5 by putative inlier ratio (pairs) | {head} | all ({next(iter(r['methods'].values()))['pairs']}) |",
+            "|---" * (len(bins) + 2) + "|"]
+    for method, m in r["methods"].items():
+        cells = []
+        for _, b in bins:
+            d = b[method].get("vs_reference")
+            cells.append(f"{b[method]['auc5']:.1f}" + (f" ({d['auc5']:+.1f} [{d['low']:+.1f}, {d['high']:+.1f}])" if d else ""))
+        d = r.get("auc5_vs_reference", {}).get(method)
+        cells.append(f"{m['auc5']:.1f}" + (f" ({d['auc5']:+.1f} [{d['low']:+.1f}, {d['high']:+.1f}])" if d else ""))
+        rows.append(f"| {METHOD_NAMES.get(method, method)} | " + " | ".join(cells) + " |")
+    return "\n".join(rows) + f"\n\nIn brackets: the difference to {r.get('reference')} on the same pairs [95 % interval]."
+
+
 def render_speed(r: dict) -> str:
     """Per-stage times and rates, and the ratio to the classic pipeline timed in the same process."""
     rows = ["| frames, keypoints | detect | match | neighbours | NM-Net | pose | pipelined Hz | classic (SIFT) Hz | ratio |",
@@ -107,6 +127,11 @@ EXPERIMENTS: dict[str, Experiment] = {
         ("eval", *VALIDATION, "--gaps", "1-10", "--methods", "nmnet,ratio,magsac,ratio+magsac,nmnet+magsac,"
          "nmnet+ratio+magsac,oracle", "--nmnet-precision", "float32", "--json", "{out}", "--plots", "{tmp}"),
         render_validation, needs_data=True),
+    "hard-validation": Experiment(
+        "the hard validation set: the validation scenes at frame gaps up to 30 and views up to 60 degrees apart",
+        ("eval", *VALIDATION, "--gaps", "1-30", "--max-view-angle", "60", "--methods",
+         "ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,oracle", "--seeds", "3", "--nmnet-precision", "float32",
+         "--json", "{out}", "--plots", "{tmp}"), render_hard, needs_data=True),
     "speed": Experiment(
         "per-stage times and the pipelined rate on this machine, beside the classic pipeline in the same process",
         ("bench", "--pipeline", "--json", "{out}"), render_speed),

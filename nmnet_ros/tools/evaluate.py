@@ -134,7 +134,7 @@ def lo_hi(b: tuple[int, int], x: int) -> bool:
     return b[0] <= x <= b[1]
 
 
-def _bin_order(name: str) -> float:
+def bin_order(name: str) -> float:
     """A bin's place in a table: by its lower bound ('< 10 %' first)."""
     digits = re.findall(r"\d+", name)
     return -1.0 if name.startswith("<") else float(digits[0])
@@ -170,7 +170,7 @@ def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], referen
     A mean over several sequences can hide that the methods differ on one and tie on the other;
     with ``reference`` among the methods, the others' cells also give the paired difference to it.
     """
-    names = sorted(dict.fromkeys(groups), key=_bin_order) if title != "AUC@5 per sequence (pairs)" else \
+    names = sorted(dict.fromkeys(groups), key=bin_order) if title != "AUC@5 per sequence (pairs)" else \
         list(dict.fromkeys(groups))
     labels = np.asarray(groups, object)
     n_pairs = len(next(iter(errors.values())))
