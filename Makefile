@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.installed
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 TORCH_PIN   := $(shell grep -E '^torch==' requirements.txt)
 
-.PHONY: setup test test-fast demo lint clean cpu-torch
+.PHONY: setup test test-fast demo docs lint clean cpu-torch
 
 $(STAMP): requirements.txt setup.py package.xml
 	$(PYTHON) -m venv $(VENV)
@@ -41,5 +41,9 @@ test-fast: setup
 demo: setup
 	$(BIN)/nmnet demo
 
+# the documentation site into site/ (strict: a broken link fails); `$(BIN)/mkdocs serve` to browse it
+docs: setup
+	$(BIN)/mkdocs build --strict
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info site

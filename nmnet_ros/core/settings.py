@@ -60,7 +60,7 @@ SELECTING = ("replay", "eval")  # the tools that run NM-Net and a pose estimator
 SETTINGS: tuple[Setting, ...] = (
     Setting("weights", "", "NM-Net weights file; empty = the weights shipped with the package", tools=SELECTING),
     Setting("detector", "hessian-affine-fast", "local feature frames", DETECTOR_NAMES, tools=FEATURES,
-            details="hessian-affine-fast (batched, default), hessian-affine (kornia reference, ~1 s/frame), sift "
+            details="hessian-affine-fast (batched, default), hessian-affine (kornia reference, far slower), sift "
                     "(similarity frames)"),
     Setting("max_keypoints", 2000, "keypoints detected per frame", range=(100, 8000), tools=FEATURES),
     Setting("resize_width", 0, "frames wider than this are downscaled to it before detection (0 = full resolution)",
@@ -72,7 +72,7 @@ SETTINGS: tuple[Setting, ...] = (
             "calibrated with the weights", range=(-1.0, 1.0), tools=SELECTING),
     Setting("nmnet_precision", "auto", "NM-Net arithmetic", PRECISION_NAMES, tools=SELECTING,
             details="auto (bfloat16 where the CPU has native bfloat16, else float32), float32 (the exact network), "
-                    "bfloat16 (1.7x faster NM-Net with AVX512-BF16; same accuracy on validation)"),
+                    "bfloat16 (faster on CPUs with native bfloat16, the same decisions to rounding)"),
     Setting("matching", "nn", "putative matches: nn (paper), mutual, ratio (Lowe 0.8)", ("nn", "mutual", "ratio"),
             tools=("replay",)),
     Setting("pose_estimator", "ratio_magsac", "how the pose is fitted", tuple(POSE_ESTIMATORS), tools=("replay",),
