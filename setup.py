@@ -32,6 +32,7 @@ setup(
         "rosbags>=0.10.4,<0.12",
         "mcap>=1.1,<2",
         "mcap-ros2-support>=0.5,<1",
+        "pycolmap>=4.2,<5",  # nmnet label: reconstruction of unlabeled recordings
     ],
     extras_require={
         "ros": [f"ros-{name}; sys_platform == 'linux' and platform_machine == 'x86_64'" for name in

@@ -63,6 +63,19 @@ def read_camera_yaml(path: Path, topic: str | None = None) -> Camera:
         raise DatasetError(f"{path}: malformed camera YAML ({type(e).__name__}: {e})") from e
 
 
+def write_camera_yaml(path: Path, camera: Camera) -> None:
+    """``camera`` as a ROS camera_info YAML (camera_calibration_parsers' layout), as :func:`read_camera_yaml` reads it."""
+    def matrix(rows: int, cols: int, data: np.ndarray) -> dict:
+        return {"rows": rows, "cols": cols, "data": [float(v) for v in np.ravel(data)]}
+
+    P = np.c_[camera.K, np.zeros(3)]
+    doc = {"image_width": int(camera.width), "image_height": int(camera.height), "camera_name": "camera",
+           "camera_matrix": matrix(3, 3, camera.K), "distortion_model": camera.model,
+           "distortion_coefficients": matrix(1, camera.dist.size, camera.dist),
+           "rectification_matrix": matrix(3, 3, np.eye(3)), "projection_matrix": matrix(3, 4, P)}
+    Path(path).write_text(yaml.safe_dump(doc, sort_keys=False))
+
+
 def _opencv_camera(path: Path) -> Camera:
     """OpenCV's FileStorage YAML ('%YAML:1.0', or matrices tagged !!opencv-matrix; read with cv2.FileStorage): its
     calibration's ``camera_matrix`` and ``distortion_coefficients``, or ORB-SLAM2/3's settings (``Camera.fx`` or

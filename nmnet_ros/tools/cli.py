@@ -22,6 +22,8 @@ SUBCOMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], str
     "eval": ("nmnet_ros.tools.evaluate", options.evaluate, "compare correspondence selectors on sequence folders"),
     "neighbors": ("nmnet_ros.tools.neighbor_study", options.neighbors,
                   "inlier ratio of compatibility vs spatial neighbours (paper Fig. 3)"),
+    "label": ("nmnet_ros.tools.label", options.label,
+              "ground-truth poses for an unlabeled recording (COLMAP reconstruction), as a sequence folder to train on"),
     "bench": ("nmnet_ros.tools.bench", options.bench, "time the pipeline stages on this machine"),
     "make-bag": ("nmnet_ros.tools.make_bag", options.make_bag,
                  "convert a sequence folder into a ROS 1 .bag, ROS 2 .db3 or .mcap"),

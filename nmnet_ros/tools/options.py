@@ -18,6 +18,7 @@ from ..core.settings import BY_NAME, METHODS, POSE_ESTIMATORS, for_tool, problem
 from ..io.datasets import FOLDERS_READ, LABEL_THRESHOLD
 
 SAMPLE_BAG = Path(__file__).parents[1] / "sample" / "kitti07_120-159"
+SHIPPED_WEIGHTS = Path(__file__).parents[1] / "weights" / "nmnet.pt"
 BAG_FORMATS = ("mcap", "sqlite3", "ros1")
 NEIGHBORS = ("nmnet", "nmnet-sp")  # the network's variants: compatibility (the paper's), spatial neighbours
 # former names of setting options, still accepted
@@ -229,6 +230,30 @@ def make_bag(p: argparse.ArgumentParser) -> None:
                    "for 16-bit frames")
 
 
+def label(p: argparse.ArgumentParser) -> None:
+    """``nmnet label``."""
+    p.add_argument("recording", type=Path, metavar="RECORDING", help="a bag (.bag, .db3, .mcap or a bag folder), a "
+                   "sequence folder (its ground truth is not used), or a folder of images with --camera")
+    p.add_argument("out_dir", type=Path, metavar="OUT_DIR", help="the labelled sequence folder to write")
+    p.add_argument("--camera", type=Path, default=None, metavar="YAML",
+                   help="calibration (a camera_info YAML, Kalibr, EuRoC or OpenCV file), for a recording without one")
+    p.add_argument("--image-topic", default=None, help="a bag's image topic (default: its only camera's)")
+    p.add_argument("--interval", type=seconds, default=0.1, metavar="SEC",
+                   help="a keyframe at least this many seconds after the previous one")
+    p.add_argument("--min-flow", type=bounded(float, 0.0, "pixels, >= 0"), default=0.0, metavar="PX",
+                   help="and only once the image has moved this many pixels (median corner motion) since it; 0 = off")
+    p.add_argument("--max-frames", type=whole(2), default=400, help="keyframes at most (COLMAP's time grows with them)")
+    p.add_argument("--fps", type=bounded(float, 0.0, "frames per second > 0", strict=True), default=10.0,
+                   help="a folder of images: the frame rate its stamps are made with")
+    p.add_argument("--json", type=file_path, default=None, help="write the reconstruction's summary (and --truth's check) as JSON")
+    p.add_argument("--truth", default=None, metavar="SEQ_DIR",
+                   help="check the labels against this sequence folder's real ground truth (the same frames, by stamp)")
+    p.add_argument("--mapper", choices=("global", "incremental"), default="global",
+                   help="COLMAP's global mapper (GLOMAP; steadier on driving sequences) or its incremental one")
+    p.add_argument("--refine-intrinsics", action="store_true",
+                   help="let the mapper refine the focal length and distortion (default: the calibration is fixed)")
+
+
 def evaluate(p: argparse.ArgumentParser) -> None:
     """``nmnet eval``."""
     p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help=SEQS)
@@ -315,7 +340,8 @@ def train(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--label-threshold", type=float, default=d["label_threshold"],
                    help="inlier label: squared symmetric epipolar distance below this, normalised coordinates")
-    p.add_argument("--init", type=Path, default=None, help="checkpoint to start from (fine-tuning)")
+    p.add_argument("--init", type=Path, nargs="?", const=SHIPPED_WEIGHTS, default=None, metavar="CHECKPOINT",
+                   help="fine-tune from this checkpoint; --init alone: from the shipped weights (default: random start)")
     p.add_argument("--cache", type=Path, default=None, help="feature cache folder (default ~/.cache/nmnet_ros)")
     p.add_argument("--augment", action="store_true",
                    help=f"augment training pairs: swap the images, mirror, roll each camera by up to {MAX_ROLL_DEG:g} degrees")

@@ -1,0 +1,234 @@
+"""``nmnet label``: ground truth for an unlabeled recording, by reconstructing its keyframes (COLMAP via pycolmap).
+
+Reads a bag (as replay reads it), a sequence folder (its ground truth, if any, is not used) or a folder of images
+with ``--camera``; picks keyframes by time and, optionally, by image motion; reconstructs them with the camera's
+calibration held fixed; and, when the reconstruction passes its quality checks, writes a sequence folder whose
+groundtruth.txt holds the reconstructed poses (scale arbitrary), with ``reconstruction.json`` saying so. That
+folder trains (``nmnet train --train OUT``) and evaluates as any other. The output is built beside ``OUT_DIR`` and
+renamed into place at the end: a failed or interrupted run leaves no output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..core.geometry import Camera, fit_rotation, rotation_error_deg, translation_error_deg
+from ..core.settings import FRONTEND_DEFAULTS
+from ..interface.posemsg import rot_to_quat
+from ..io.bags import BAG_SUFFIXES, BagReader, read_frames
+from ..io.datasets import Sequence, epipolar_labels, read_camera_yaml, write_camera_yaml
+from ..io.outputs import not_an_input, output_file, output_folder, write_json, written_here
+from ..io.pairs import parse_seq_spec
+from ..io.reconstruction import ReconstructionError, quality_problem, reconstruct
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
+MIN_PARALLAX_PX = 0.5  # median between consecutive keyframes; KITTI at 10 Hz has >= 1.7 px, a standing MAV 0.07
+OUTPUTS = ("camera.yaml", "images.txt", "groundtruth.txt", "reconstruction.json")
+
+
+def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[float, np.ndarray]], Camera | None]:
+    """(stamp, image) of every frame of ``source`` and its calibration (``--camera``'s when given)."""
+    camera = read_camera_yaml(args.camera) if args.camera else None
+    if source.suffix in BAG_SUFFIXES or (source / "metadata.yaml").is_file():
+        reader = BagReader(source)
+        frames, _ = read_frames(reader, args.image_topic)
+        first: dict = {}
+
+        def from_bag() -> Iterator[tuple[float, np.ndarray]]:
+            for f in frames:
+                if f.image is not None:
+                    first.setdefault("camera", f.camera)
+                    yield f.stamp, f.image
+        it = from_bag()
+        head = next(it, None)
+        if head is None:
+            raise ValueError(f"{source}: no readable frame")
+        camera = camera or first.get("camera")
+        return _chain(head, it), camera
+    path, frames = parse_seq_spec(str(source))
+    path = Path(path)
+    if (path / "images.txt").is_file() or (path / "camera.yaml").is_file() or not _images_in(path):
+        seq = Sequence.load(path)  # its ground truth, if any, is not looked at
+        chosen = frames if frames is not None else range(len(seq.paths))
+        return ((float(seq.stamps[i]), seq.image(i)) for i in chosen), camera or seq.camera
+    files = _images_in(source)
+    if camera is None:
+        raise ValueError(f"{source}: a folder of images needs --camera (a camera_info YAML) for its calibration")
+    return ((k / args.fps, cv2.imread(str(p), cv2.IMREAD_UNCHANGED)) for k, p in enumerate(files)), camera
+
+
+def _chain(head: tuple, rest: Iterator) -> Iterator:
+    yield head
+    yield from rest
+
+
+def _images_in(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if folder.is_dir() else []
+
+
+def _gray(image: np.ndarray) -> np.ndarray:
+    g = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    return (g / 256).astype(np.uint8) if g.dtype == np.uint16 else g
+
+
+def tracked(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Corners of gray image ``a`` and where Lucas-Kanade tracks them in ``b`` (N, 2 each)."""
+    pts = cv2.goodFeaturesToTrack(a, 400, 0.01, 8)
+    if pts is None:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    moved, ok, _ = cv2.calcOpticalFlowPyrLK(a, b, pts, None)
+    ok = ok.ravel().astype(bool)
+    return pts.reshape(-1, 2)[ok], moved.reshape(-1, 2)[ok]
+
+
+def median_flow(a: np.ndarray, b: np.ndarray) -> float:
+    """Median motion (px) of corners tracked from gray image ``a`` to ``b``; inf when none tracks."""
+    p0, p1 = tracked(a, b)
+    return float(np.median(np.linalg.norm(p1 - p0, axis=1))) if len(p0) else float("inf")
+
+
+def parallax_px(a: np.ndarray, b: np.ndarray, camera: Camera) -> float:
+    """Median parallax (px) between gray images ``a`` and ``b``: the motion of tracked corners that the best rotation
+    alone does not explain (the front end's no-motion test). Near 0: no baseline, whatever the camera turned."""
+    p0, p1 = tracked(a, b)
+    if len(p0) < 8:  # too few corners tracked: a motion too large for the tracker (or no texture: COLMAP says so)
+        return float("inf")
+    _, angles = fit_rotation(camera.normalize(p0), camera.normalize(p1))
+    return float(np.median(angles) * camera.focal)
+
+
+def pick_keyframes(frames: Iterator[tuple[float, np.ndarray]], interval: float, min_flow: float, max_frames: int,
+                   camera: Camera, parallax: list[float]) -> Iterator[tuple[float, np.ndarray]]:
+    """Frames at least ``interval`` s after the last keyframe and, with ``min_flow``, moved at least that many pixels
+    from it; at most ``max_frames``. Appends each keyframe's parallax to the one before to ``parallax``."""
+    last, last_gray, n = None, None, 0
+    for stamp, image in frames:
+        if n >= max_frames:
+            return
+        if last is not None and stamp - last < interval:
+            continue
+        gray = _gray(image)
+        if min_flow > 0 and last_gray is not None and median_flow(last_gray, gray) < min_flow:
+            continue
+        if last_gray is not None:
+            parallax.append(parallax_px(last_gray, gray, camera))
+        last, last_gray, n = stamp, gray, n + 1
+        yield stamp, image
+
+
+def write_sequence(out: Path, camera: Camera, stamps: list[float], names: list[str], poses: dict[str, np.ndarray],
+                   note: dict) -> None:
+    """The sequence folder (images/ written already): camera.yaml, images.txt, groundtruth.txt, reconstruction.json."""
+    write_camera_yaml(out / "camera.yaml", camera)
+    (out / "images.txt").write_text("# timestamp filename\n" + "".join(
+        f"{s:.9f} images/{n}\n" for s, n in zip(stamps, names, strict=True)))
+    lines = ["# timestamp tx ty tz qx qy qz qw: a reconstruction (see reconstruction.json); scale arbitrary\n"]
+    for s, n in zip(stamps, names, strict=True):
+        if n in poses:
+            T = poses[n]
+            q = rot_to_quat(T[:3, :3])
+            lines.append(f"{s:.9f} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *q)) + "\n")
+    (out / "groundtruth.txt").write_text("".join(lines))
+    write_json(out / "reconstruction.json", note)
+
+
+def truth_check(out: Path, truth_spec: str) -> dict:
+    """How the labels of the folder ``out`` agree with the real ground truth of ``truth_spec`` (a sequence folder
+    holding the same frames, by stamp): each consecutive keyframe pair's rotation and translation-direction error,
+    and the share of its nearest-neighbour matches (the network's input) whose epipolar label is the same."""
+    from ..core.detectors import make_detector
+    from ..io.cache import FeatureCache
+    from ..io.pairs import make_pair
+
+    labelled, truth = Sequence.load(out), Sequence.load(parse_seq_spec(truth_spec)[0])
+    if truth.poses is None:
+        raise ValueError(f"--truth {truth_spec}: has no groundtruth.txt to check against")
+    at = {round(float(s), 3): k for k, s in enumerate(truth.stamps)}
+    cache = FeatureCache(make_detector(FRONTEND_DEFAULTS["detector"], {"max_keypoints": FRONTEND_DEFAULTS["max_keypoints"]}))
+    rot, direction, same, total = [], [], 0, 0
+    for i in range(len(labelled.paths) - 1):
+        a, b = at.get(round(float(labelled.stamps[i]), 3)), at.get(round(float(labelled.stamps[i + 1]), 3))
+        if a is None or b is None or not (labelled.has_pose(i) and labelled.has_pose(i + 1)):
+            continue
+        if not (truth.has_pose(a) and truth.has_pose(b)):
+            continue
+        (R, t), (R_gt, t_gt) = labelled.relative_pose(i, i + 1), truth.relative_pose(a, b)
+        rot.append(rotation_error_deg(R, R_gt))
+        direction.append(translation_error_deg(t, t_gt))
+        p = make_pair(truth, a, b, cache)
+        mine, _ = epipolar_labels(labelled, i, i + 1, p.k0, p.k1)
+        same += int((mine == p.labels).sum())
+        total += len(p.labels)
+    if not rot:
+        raise ValueError(f"--truth {truth_spec}: none of its frames has a keyframe's stamp: give the folder labelled")
+    return {"pairs": len(rot), "median_rot_deg": float(np.median(rot)), "median_trans_deg": float(np.median(direction)),
+            "label_agreement_percent": 100 * same / max(total, 1), "matches": total}
+
+
+def main(args: argparse.Namespace) -> int:
+    """Entry point of ``nmnet label``."""
+    source, out = Path(args.recording), Path(args.out_dir)
+    output_file(args.json, "--json", "label.json", [Path(parse_seq_spec(str(source))[0])])
+    ours = (out / "reconstruction.json").is_file() and written_here(out / "reconstruction.json")  # an earlier label run
+    output_folder(out, "OUT_DIR", "the labelled sequence folder", [Path(parse_seq_spec(str(source))[0]), args.camera],
+                  () if ours else OUTPUTS)
+    if out.is_dir() and any(out.iterdir()) and not ours:
+        raise ValueError(f"OUT_DIR {out} holds files nmnet label did not write: give a new or empty folder")
+    frames, camera = frames_of(source, args)
+    if camera is None:
+        raise ValueError(f"{source}: no camera_info in the recording; give its calibration with --camera")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    building = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    not_an_input(building, "OUT_DIR", [source])
+    try:
+        (building / "images").mkdir()
+        stamps, names, parallax = [], [], []
+        for stamp, image in pick_keyframes(frames, args.interval, args.min_flow, args.max_frames, camera, parallax):
+            name = f"{len(names):06d}.png"
+            if not cv2.imwrite(str(building / "images" / name), image):
+                raise OSError(f"cannot write {building / 'images' / name}")
+            stamps.append(stamp)
+            names.append(name)
+        if len(names) < 2:
+            raise ReconstructionError(f"{source}: {len(names)} keyframe(s); give a longer recording or a shorter "
+                                      "--interval")
+        if np.median(parallax) < MIN_PARALLAX_PX:
+            raise ReconstructionError(
+                f"{source}: the camera barely moves between keyframes (median parallax {np.median(parallax):.2f} px, "
+                f"under {MIN_PARALLAX_PX} px, once its turning is taken out: a standing or only turning camera); poses "
+                "from it would be drawn from noise: record while the robot moves, or skip the still parts (--min-flow)")
+        print(f"label: {len(names)} keyframes; reconstructing (COLMAP, {args.mapper} mapper)", file=sys.stderr)
+        rec = reconstruct(building / "images", names, camera, building / "colmap", args.refine_intrinsics,
+                          mapper=args.mapper)
+        if (why := quality_problem(rec, names)) is not None:
+            raise ReconstructionError(f"{source}: {why}")
+        shutil.rmtree(building / "colmap")
+        note = {"what": f"poses reconstructed by COLMAP's {args.mapper} mapper (pycolmap), not measured: scale arbitrary",
+                "source": str(source), "keyframes": len(names), "registered": rec.registered,
+                "mean_reprojection_px": rec.mean_reprojection_px, "points": rec.points, "models": rec.models,
+                "kept": "the largest model", "intrinsics": "refined" if args.refine_intrinsics else "fixed",
+                "interval_s": args.interval, "min_flow_px": args.min_flow}
+        write_sequence(building, camera, stamps, names, rec.poses, note)
+        if out.exists():
+            shutil.rmtree(out)  # an earlier label run's (checked above)
+        building.rename(out)
+    finally:
+        shutil.rmtree(building, ignore_errors=True)
+    print(f"label: {rec.registered} of {len(names)} keyframes registered, mean reprojection error "
+          f"{rec.mean_reprojection_px:.2f} px -> {out}")
+    if args.truth:
+        note["truth_check"] = check = truth_check(out, args.truth)
+        print(f"label: against {args.truth}, {check['pairs']} consecutive keyframe pairs: median rotation error "
+              f"{check['median_rot_deg']:.3f} deg, translation direction {check['median_trans_deg']:.2f} deg; the "
+              f"same epipolar label on {check['label_agreement_percent']:.1f} % of {check['matches']} matches")
+    if args.json:
+        write_json(args.json, note)
+    return 0

@@ -1,0 +1,71 @@
+"""nmnet label: ground truth for an unlabeled recording by reconstruction (real COLMAP through pycolmap, real data)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from nmnet_ros.io.datasets import Sequence
+from nmnet_ros.io.outputs import written_here
+from nmnet_ros.tools.make_bag import make_bag
+
+from .conftest import ROOT, data_dir
+
+pytestmark = pytest.mark.slow
+
+
+def nmnet(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", *args], capture_output=True, text=True, cwd=ROOT,
+                          timeout=900)
+
+
+@pytest.mark.parametrize("scene, frames", [("strecha-fountain-p11", ""), ("kitti-07", ":0-59")])
+def test_labels_of_a_reconstruction_agree_with_the_real_ground_truth(tmp_path, scene, frames):
+    """The mapper never sees the ground truth; the consecutive keyframes' relative poses it gives agree with it to
+    under 0.1 degree in rotation and 1 degree in translation direction, and the epipolar labels of the network's
+    input matches agree on >= 97 %. The folder it writes reads as a sequence folder, its poses said to be a
+    reconstruction."""
+    out, summary = tmp_path / "labelled", tmp_path / "label.json"
+    r = nmnet("label", f"{data_dir(scene)}{frames}", str(out), "--interval", "0", "--truth", str(data_dir(scene)),
+              "--json", str(summary))
+    assert r.returncode == 0, r.stderr
+    check = json.loads(summary.read_text())["truth_check"]
+    assert check["median_rot_deg"] < 0.1 and check["median_trans_deg"] < 1.0, check
+    assert check["label_agreement_percent"] >= 97.0, check
+    seq = Sequence.load(out)
+    n = len(seq.paths)
+    assert n == (11 if scene.startswith("strecha") else 60) and seq.poses is not None and seq.has_pose(0)
+    note = json.loads((out / "reconstruction.json").read_text())
+    assert note["registered"] == n and "reconstructed" in note["what"] and written_here(out / "reconstruction.json")
+    assert "reconstruction" in (out / "groundtruth.txt").read_text().splitlines()[0]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # nothing left of the build
+
+
+def test_a_bag_is_labelled_with_its_camera_info_and_a_standing_camera_is_refused(tmp_path):
+    """A bag (as replay reads it) gives its frames and its camera_info; a standing camera (EuRoC's MAV on the
+    ground) is refused with the reason and what to do, and leaves no output; so is a folder of someone else's."""
+    bag = tmp_path / "run"
+    assert make_bag(data_dir("kitti-07"), bag, "mcap", frames=range(60, 80)) == 20
+    r = nmnet("label", str(bag), str(tmp_path / "from_bag"))
+    assert r.returncode == 0, r.stderr
+    seq = Sequence.load(tmp_path / "from_bag")
+    truth = Sequence.load(data_dir("kitti-07"))
+    assert np.allclose(seq.camera.K, truth.camera.K) and len(seq.paths) == 20
+    assert np.allclose(seq.stamps, truth.stamps[60:80], atol=1e-6)  # the bag's header stamps
+    r = nmnet("label", str(data_dir("euroc-v101-cam0")), str(tmp_path / "still"))
+    assert r.returncode == 2 and "barely moves" in r.stderr and "record while the robot moves" in r.stderr, r.stderr
+    assert not (tmp_path / "still").exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "notes.txt").write_text("mine")
+    r = nmnet("label", str(bag), str(theirs))
+    assert r.returncode == 2 and "did not write" in r.stderr and (theirs / "notes.txt").read_text() == "mine"
+    images = tmp_path / "images"
+    images.mkdir()
+    (images / "a.png").write_bytes((data_dir("kitti-07") / "images" / "000000.png").read_bytes())
+    r = nmnet("label", str(images), str(tmp_path / "x"))
+    assert r.returncode == 2 and "needs --camera" in r.stderr
