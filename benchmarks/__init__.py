@@ -96,6 +96,16 @@ def render_hard(r: dict) -> str:
     return "\n".join(rows) + f"\n\nIn brackets: the difference to {r.get('reference')} on the same pairs [95 % interval]."
 
 
+def render_labels(r: dict) -> str:
+    """How the labels of a reconstruction agree with the real ground truth."""
+    c = r["truth_check"]
+    return ("| keyframes registered | mean reprojection error | consecutive pairs | median rotation error | "
+            "median direction error | same epipolar label |\n|---|---|---|---|---|---|\n"
+            f"| {r['registered']} of {r['keyframes']} | {r['mean_reprojection_px']:.2f} px | {c['pairs']} | "
+            f"{c['median_rot_deg']:.3f} deg | {c['median_trans_deg']:.2f} deg | {c['label_agreement_percent']:.1f} % of "
+            f"{c['matches']} matches |")
+
+
 def render_speed(r: dict) -> str:
     """Per-stage times and rates, and the ratio to the classic pipeline timed in the same process."""
     rows = ["| frames, keypoints | detect | match | neighbours | NM-Net | pose | pipelined Hz | classic (SIFT) Hz | ratio |",
@@ -132,6 +142,10 @@ EXPERIMENTS: dict[str, Experiment] = {
         ("eval", *VALIDATION, "--gaps", "1-30", "--max-view-angle", "60", "--methods",
          "ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,oracle", "--seeds", "3", "--nmnet-precision", "float32",
          "--json", "{out}", "--plots", "{tmp}"), render_hard, needs_data=True),
+    "labels": Experiment(
+        "nmnet label on KITTI-07 frames 0-119 with the ground truth withheld, checked against it afterwards",
+        ("label", f"{DATA}/kitti-07:0-119", "{tmp}/labelled", "--truth", f"{DATA}/kitti-07", "--json", "{out}"),
+        render_labels, needs_data=True),
     "speed": Experiment(
         "per-stage times and the pipelined rate on this machine, beside the classic pipeline in the same process",
         ("bench", "--pipeline", "--json", "{out}"), render_speed),
