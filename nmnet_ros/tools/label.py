@@ -43,14 +43,14 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
         first: dict = {}
 
         def from_bag() -> Iterator[tuple[float, np.ndarray]]:
-            for f in frames:
-                if f.image is not None:
+            for f in frames:  # as the node: from the first frame with a calibration (camera_info, or --camera)
+                if f.image is not None and (camera is not None or f.camera is not None):
                     first.setdefault("camera", f.camera)
                     yield f.stamp, f.image
         it = from_bag()
         head = next(it, None)
         if head is None:
-            raise ValueError(f"{source}: no readable frame")
+            raise ValueError(f"{source}: no readable frame with a calibration (no camera_info? give --camera)")
         camera = camera or first.get("camera")
         return _chain(head, it), camera
     path, frames = parse_seq_spec(str(source))
