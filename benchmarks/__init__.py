@@ -123,8 +123,11 @@ def render_speed(r: dict) -> str:
 
 def render_neighbors(r: dict) -> str:
     """The paper's Fig. 3: inliers among a true match's neighbours, compatibility against spatial."""
-    return r["table"] + (f"\n\nCompatibility neighbours hold more inliers than spatial ones in "
-                         f"{r['compat_wins_percent']:.0f} % of the {r['pairs']} pairs.")
+    rows = ["| pair's inlier ratio | pairs | inliers among compatibility neighbours | among spatial neighbours |",
+            "|---|---|---|---|"]
+    rows += [f"| {b['bucket']} | {b['pairs']} | {b['compatibility']:.1f} % | {b['spatial']:.1f} % |" for b in r["table"]]
+    return "\n".join(rows) + (f"\n\nCompatibility neighbours hold more inliers than spatial ones in "
+                              f"{r['compat_wins_percent']:.0f} % of the {r['pairs']} pairs.")
 
 
 EXPERIMENTS: dict[str, Experiment] = {
