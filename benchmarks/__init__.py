@@ -118,7 +118,8 @@ def render_speed(r: dict) -> str:
                     f"{s['match']['median']:.0f} | {s['neighbors']['median']:.0f} | {s['nmnet']['median']:.0f} | "
                     f"{s['pose']['median']:.0f} | {s['end_to_end_hz']:.1f} | {s['baseline_hz']:.1f} | "
                     f"{s['end_to_end_hz'] / s['baseline_hz']:.2f}x |")
-    return "\n".join(rows) + "\n\nStage times: median ms, serial, as the node's stages run them."
+    return "\n".join(rows) + ("\n\nStage times: median ms, one stage after the other; pipelined: the node's two stages, "
+                               "one thread each, side by side.")
 
 
 def render_neighbors(r: dict) -> str:
