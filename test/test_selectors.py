@@ -475,7 +475,8 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     assert "| nmnet |" in run.stdout and (tmp_path / "curves.png").stat().st_size > 0
     assert "7 pairs, mean inlier ratio" in run.stdout and "; NM-Net in " in run.stdout  # the arithmetic it ran in
     doc = json.loads(out.read_text())
-    assert set(doc) == {"written_by", "methods"} and doc["written_by"].startswith("nmnet_ros")
+    assert set(doc) == {"written_by", "methods", "bins"} and doc["written_by"].startswith("nmnet_ros")  # no reference run
+    assert set(doc["bins"]) == {"inlier_ratio", "gap"} and set(doc["bins"]["gap"]) == {"1-2"}
     res = doc["methods"]
     keys = {"precision", "recall", "f1", "auc5", "auc10", "auc20", "median_rot_deg", "median_trans_deg", "pairs", "sec_per_pair"}
     assert set(res) == {"ratio", "nmnet", "oracle"} and all(set(v) == keys for v in res.values())

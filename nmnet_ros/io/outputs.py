@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import uuid
 import zipfile
 from collections.abc import Callable, Iterable
 from importlib.metadata import PackageNotFoundError, version
@@ -145,10 +146,12 @@ def output_folder(path: Path | None, flag: str, what: str, inputs: Iterable[Path
         not_someone_elses(path / name, flag)
 
 
-def _replace_atomically(path: Path, write: Callable[[Path], None]) -> None:
+def replace_atomically(path: Path, write: Callable[[Path], None]) -> None:
     """``write`` to a temporary file beside ``path``, then rename it there: an interrupted or failed write leaves the
-    previous file (or none), never half a file."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    previous file (or none), never half a file. Each call has its own temporary name: a writer interrupted half-way
+    (torch.save's zip writer, closed whenever it is collected) may still write into its file later, which must
+    then not be the one renamed into place."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
     try:
         write(tmp)
         tmp.replace(path)
@@ -167,7 +170,7 @@ def write_json(path: Path, doc: dict) -> None:
         return None if isinstance(v, float) and not math.isfinite(v) else v
 
     text = json.dumps(clean({"written_by": written_by(), **doc}), indent=1, allow_nan=False)
-    _replace_atomically(path, lambda tmp: tmp.write_text(text))
+    replace_atomically(path, lambda tmp: tmp.write_text(text))
 
 
 def save_figure(fig, path: Path) -> Path:
@@ -175,7 +178,7 @@ def save_figure(fig, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
-    _replace_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png", metadata={"Software": written_by()}))
+    replace_atomically(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png", metadata={"Software": written_by()}))
     plt.close(fig)
     return path
 
@@ -185,6 +188,6 @@ def save_image(path: Path, bgr) -> Path:
     import matplotlib.image
 
     rgb = bgr[..., ::-1] if bgr.ndim == 3 else bgr
-    _replace_atomically(path, lambda tmp: matplotlib.image.imsave(tmp, rgb, format="png", cmap="gray",
+    replace_atomically(path, lambda tmp: matplotlib.image.imsave(tmp, rgb, format="png", cmap="gray",
                                                                   metadata={"Software": written_by()}))
     return path

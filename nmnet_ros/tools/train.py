@@ -35,7 +35,7 @@ from ..core.neighbors import mine_neighbors
 from ..core.settings import FRONTEND_DEFAULTS
 from ..io.cache import FeatureCache
 from ..io.datasets import LABEL_THRESHOLD, Sequence, pose_labels
-from ..io.outputs import output_folder, write_json, written_by
+from ..io.outputs import output_folder, replace_atomically, write_json, written_by
 from ..io.pairs import PairData, load_pairs, parse_seq_spec, shared_frames
 from .options import MAX_ROLL_DEG, MIN_THINNED_RATIO, TRAIN_DEFAULTS
 
@@ -270,10 +270,10 @@ def validate(model: NMNet, pairs: list[PairData], threshold: float = 0.5) -> dic
 
 
 def _save(path: Path, checkpoint: dict) -> None:
-    """torch.save through a temporary file: an interrupt while writing leaves the previous checkpoint whole."""
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(checkpoint, tmp)
-    tmp.replace(path)
+    """torch.save through a temporary file of its own: an interrupt while writing leaves the previous checkpoint
+    whole, and a save interrupted half-way cannot write into a later one (it wrote into best.pt.tmp, which the
+    calibration's save then renamed to best.pt, and corrupted it)."""
+    replace_atomically(path, lambda tmp: torch.save(checkpoint, tmp))
 
 
 def calibrate(out_dir: Path, val_pairs: list[PairData], log: Callable[[str], None] = print) -> dict:
