@@ -225,7 +225,8 @@ def provenance() -> dict:
     from nmnet_ros.ros.entry import version
 
     return {"version": version(), "commit": _git("rev-parse", "HEAD"),
-            "uncommitted_changes": bool(_git("status", "--porcelain", "--untracked-files=no")),
+            "uncommitted_changes": bool(_git("status", "--porcelain", "--untracked-files=no", "--", ".",
+                                             ":!benchmarks/results")),  # the stored results are not the code
             "weights_sha256": hashlib.sha256(WEIGHTS.read_bytes()).hexdigest(), "settings": FRONTEND_DEFAULTS,
             "machine": machine(), "date": datetime.now(UTC).isoformat(timespec="seconds")}
 
