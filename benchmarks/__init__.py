@@ -79,9 +79,9 @@ def render_validation(r: dict) -> str:
 def render_hard(r: dict) -> str:
     """The hard validation set: AUC@5 per putative-inlier-ratio bin and over all pairs, with the difference to the
     classic pipeline and its 95 % interval."""
-    from nmnet_ros.tools.evaluate import bin_order
+    from nmnet_ros.tools.evaluate import BIN_ORDER
 
-    bins = sorted(r["bins"]["inlier_ratio"].items(), key=lambda kv: bin_order(kv[0]))
+    bins = sorted(r["bins"]["inlier_ratio"].items(), key=lambda kv: BIN_ORDER[kv[0]])
     head = " | ".join(f"{name} ({b['pairs']})" for name, b in bins)
     rows = [f"| AUC@5 by putative inlier ratio (pairs) | {head} | all ({next(iter(r['methods'].values()))['pairs']}) |",
             "|---" * (len(bins) + 2) + "|"]

@@ -11,7 +11,7 @@ size of the differences between the best pipelines.
 from __future__ import annotations
 
 import argparse
-import re
+import bisect
 import sys
 import time
 from pathlib import Path
@@ -108,36 +108,19 @@ def reference_differences(errors: dict[str, np.ndarray], reference: str) -> dict
     return {"reference": reference, "auc5_vs_reference": diffs}
 
 
-RATIO_BINS = ((0, 10), (10, 20), (20, 35), (35, 100))  # putative inlier ratio, %: the hard pairs first
-GAP_BINS = ((1, 2), (3, 5), (6, 10), (11, 30), (31, 10**9))  # frames between a pair's images
-
-
-def _bin_name(lo: float, hi: float, unit: str) -> str:
-    if lo == 0:
-        return f"< {hi}{unit}"
-    return f">= {lo}{unit}" if hi >= (100 if unit else 10**9) else f"{lo}-{hi}{unit}"
+RATIO_BINS, RATIO_EDGES = ("< 10 %", "10-20 %", "20-35 %", ">= 35 %"), (10, 20, 35)  # putative inlier ratio, %
+GAP_BINS, GAP_EDGES = ("1-2", "3-5", "6-10", "11-30", ">= 31"), (3, 6, 11, 31)  # frames between a pair's images
+BIN_ORDER = {name: k for k, name in enumerate((*RATIO_BINS, *GAP_BINS))}  # a table's columns: the hard pairs first
 
 
 def ratio_bin(ratio_pct: float) -> str:
     """The bin of a pair's putative inlier ratio (%), e.g. '< 10 %', '10-20 %'."""
-    lo, hi = next(b for b in RATIO_BINS if ratio_pct < b[1] or b[1] == 100)
-    return _bin_name(lo, hi, " %")
+    return RATIO_BINS[bisect.bisect_right(RATIO_EDGES, ratio_pct)]
 
 
 def gap_bin(gap: int) -> str:
     """The bin of a pair's frame gap, e.g. '1-2', '>= 31'."""
-    lo, hi = next(b for b in GAP_BINS if lo_hi(b, gap))
-    return _bin_name(lo, hi, "")
-
-
-def lo_hi(b: tuple[int, int], x: int) -> bool:
-    return b[0] <= x <= b[1]
-
-
-def bin_order(name: str) -> float:
-    """A bin's place in a table: by its lower bound ('< 10 %' first)."""
-    digits = re.findall(r"\d+", name)
-    return -1.0 if name.startswith("<") else float(digits[0])
+    return GAP_BINS[bisect.bisect_right(GAP_EDGES, gap)]
 
 
 def pair_bins(pairs: list[PairData]) -> dict[str, list[str]]:
@@ -146,9 +129,13 @@ def pair_bins(pairs: list[PairData]) -> dict[str, list[str]]:
             "gap": [gap_bin(abs(p.j - p.i)) for p in pairs]}
 
 
-def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str) -> dict:
-    """For the JSON: per bin, its pair count and every method's AUC@5 (and difference to ``reference`` [95 %])."""
+def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None) -> dict:
+    """Per group (``groups[k]`` names pair k's), in first-seen order: its pair count and every method's AUC@5, with the
+    paired difference to ``reference`` [95 %] when it is among the methods. The JSON's ``bins`` and the tables'."""
     labels = np.asarray(groups, object)
+    n_pairs = len(next(iter(errors.values())))
+    if len(labels) != n_pairs:
+        raise ValueError(f"{len(labels)} sequence labels for {n_pairs} pairs")
     out = {}
     for g in dict.fromkeys(groups):
         sel = labels == g
@@ -163,32 +150,27 @@ def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str) -> 
     return out
 
 
-def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None,
-                       title: str = "AUC@5 per sequence (pairs)") -> str:
-    """AUC@5 of every method on each sequence (``groups[k]`` names pair k's), as a markdown table.
+def group_table(rows: dict, title: str = "AUC@5 per sequence (pairs)") -> str:
+    """:func:`binned`'s rows as a markdown table, one column per group, one row per method."""
+    methods = [k for k in next(iter(rows.values())) if k != "pairs"]
+    head = " | ".join(f"{g} ({r['pairs']})" for g, r in rows.items())
+    lines = [f"| {title} | {head} |", "|---" * (len(rows) + 1) + "|"]
+    for name in methods:
+        cells = []
+        for r in rows.values():
+            cell, d = f"{r[name]['auc5']:.1f}", r[name].get("vs_reference")
+            cells.append(cell + (f" ({d['auc5']:+.1f} [{d['low']:+.1f}, {d['high']:+.1f}])" if d else ""))
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None) -> str:
+    """AUC@5 of every method on each sequence, as a markdown table.
 
     A mean over several sequences can hide that the methods differ on one and tie on the other;
     with ``reference`` among the methods, the others' cells also give the paired difference to it.
     """
-    names = sorted(dict.fromkeys(groups), key=bin_order) if title != "AUC@5 per sequence (pairs)" else \
-        list(dict.fromkeys(groups))
-    labels = np.asarray(groups, object)
-    n_pairs = len(next(iter(errors.values())))
-    if len(labels) != n_pairs:
-        raise ValueError(f"{len(labels)} sequence labels for {n_pairs} pairs")
-    head = " | ".join(f"{g} ({np.count_nonzero(labels == g)})" for g in names)
-    lines = [f"| {title} | {head} |", "|---" * (len(names) + 1) + "|"]
-    for name, e in errors.items():
-        cells = []
-        for g in names:
-            e_g = np.asarray(e)[labels == g]
-            cell = f"{100 * pose_auc(e_g.ravel(), (5.0,))[0]:.1f}"
-            if reference in errors and name != reference:
-                d, lo, hi = paired_auc_difference(e_g, np.asarray(errors[reference])[labels == g])
-                cell += f" ({d:+.1f} [{lo:+.1f}, {hi:+.1f}])"
-            cells.append(cell)
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return group_table(binned(errors, groups, reference))
 
 
 def markdown_table(metrics: dict) -> str:
@@ -296,12 +278,13 @@ def main(args: argparse.Namespace) -> int:
               "that is)")
     if len(set(groups)) > 1:
         print("\n" + per_sequence_table(res["errors"], groups, args.reference))
-    bins = pair_bins(pairs)
+    bins = {kind: binned(res["errors"], groups_of, args.reference) for kind, groups_of in pair_bins(pairs).items()}
     for kind, title in (("inlier_ratio", "AUC@5 by putative inlier ratio (pairs)"), ("gap", "AUC@5 by frame gap (pairs)")):
-        print("\n" + per_sequence_table(res["errors"], bins[kind], args.reference, title))
+        ordered = dict(sorted(bins[kind].items(), key=lambda kv: BIN_ORDER[kv[0]]))  # the hard pairs first
+        print("\n" + group_table(ordered, title))
     if args.json:  # before the plot: the numbers are what a script reads
         write_json(args.json, {"methods": res["metrics"], **reference_differences(res["errors"], args.reference),
-                               "bins": {kind: binned(res["errors"], bins[kind], args.reference) for kind in bins}})
+                               "bins": bins})
     plot_curves(res["errors"], plot)
     print(f"\nplot: {plot}")
     return 0
