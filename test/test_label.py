@@ -56,6 +56,13 @@ def test_a_bag_is_labelled_with_its_camera_info_and_a_standing_camera_is_refused
     truth = Sequence.load(data_dir("kitti-07"))
     assert np.allclose(seq.camera.K, truth.camera.K) and len(seq.paths) == 20
     assert np.allclose(seq.stamps, truth.stamps[60:80], atol=1e-6)  # the bag's header stamps
+    unposed = tmp_path / "unposed"  # --truth without ground truth: refused before any work
+    unposed.mkdir()
+    for name in ("camera.yaml", "images.txt"):
+        (unposed / name).write_text((tmp_path / "from_bag" / name).read_text())
+    (unposed / "images").symlink_to(tmp_path / "from_bag" / "images")
+    r = nmnet("label", str(bag), str(tmp_path / "checked"), "--truth", str(unposed))
+    assert r.returncode == 2 and "has no groundtruth.txt" in r.stderr and not (tmp_path / "checked").exists(), r.stderr
     r = nmnet("label", str(data_dir("euroc-v101-cam0")), str(tmp_path / "still"))
     assert r.returncode == 2 and "barely moves" in r.stderr and "record while the robot moves" in r.stderr, r.stderr
     assert not (tmp_path / "still").exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

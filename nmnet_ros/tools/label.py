@@ -89,20 +89,16 @@ def tracked(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pts.reshape(-1, 2)[ok], moved.reshape(-1, 2)[ok]
 
 
-def median_flow(a: np.ndarray, b: np.ndarray) -> float:
-    """Median motion (px) of corners tracked from gray image ``a`` to ``b``; inf when none tracks."""
+def motion_px(a: np.ndarray, b: np.ndarray, camera: Camera) -> tuple[float, float]:
+    """(median flow, median parallax) in pixels of the corners of gray image ``a`` tracked into ``b``: all their
+    motion, and what the best rotation alone does not explain (the front end's no-motion test; near 0: no baseline,
+    whatever the camera turned). inf for both when too few corners track (a motion too large for the tracker; no
+    texture at all is COLMAP's to say)."""
     p0, p1 = tracked(a, b)
-    return float(np.median(np.linalg.norm(p1 - p0, axis=1))) if len(p0) else float("inf")
-
-
-def parallax_px(a: np.ndarray, b: np.ndarray, camera: Camera) -> float:
-    """Median parallax (px) between gray images ``a`` and ``b``: the motion of tracked corners that the best rotation
-    alone does not explain (the front end's no-motion test). Near 0: no baseline, whatever the camera turned."""
-    p0, p1 = tracked(a, b)
-    if len(p0) < 8:  # too few corners tracked: a motion too large for the tracker (or no texture: COLMAP says so)
-        return float("inf")
+    if len(p0) < 8:
+        return float("inf"), float("inf")
     _, angles = fit_rotation(camera.normalize(p0), camera.normalize(p1))
-    return float(np.median(angles) * camera.focal)
+    return float(np.median(np.linalg.norm(p1 - p0, axis=1))), float(np.median(angles) * camera.focal)
 
 
 def pick_keyframes(frames: Iterator[tuple[float, np.ndarray]], interval: float, min_flow: float, max_frames: int,
@@ -116,10 +112,11 @@ def pick_keyframes(frames: Iterator[tuple[float, np.ndarray]], interval: float, 
         if last is not None and stamp - last < interval:
             continue
         gray = _gray(image)
-        if min_flow > 0 and last_gray is not None and median_flow(last_gray, gray) < min_flow:
-            continue
-        if last_gray is not None:
-            parallax.append(parallax_px(last_gray, gray, camera))
+        if last_gray is not None:  # the corners are found and tracked once for both tests
+            flow, moved = motion_px(last_gray, gray, camera)
+            if flow < min_flow:
+                continue
+            parallax.append(moved)
         last, last_gray, n = stamp, gray, n + 1
         yield stamp, image
 
@@ -140,6 +137,14 @@ def write_sequence(out: Path, camera: Camera, stamps: list[float], names: list[s
     write_json(out / "reconstruction.json", note)
 
 
+def truth_sequence(spec: str) -> Sequence:
+    """``--truth``'s folder, refused before any work when it has no ground truth to check against."""
+    truth = Sequence.load(parse_seq_spec(spec)[0])
+    if truth.poses is None:
+        raise ValueError(f"--truth {spec}: has no groundtruth.txt to check against")
+    return truth
+
+
 def truth_check(out: Path, truth_spec: str) -> dict:
     """How the labels of the folder ``out`` agree with the real ground truth of ``truth_spec`` (a sequence folder
     holding the same frames, by stamp): each consecutive keyframe pair's rotation and translation-direction error,
@@ -148,9 +153,7 @@ def truth_check(out: Path, truth_spec: str) -> dict:
     from ..io.cache import FeatureCache
     from ..io.pairs import make_pair
 
-    labelled, truth = Sequence.load(out), Sequence.load(parse_seq_spec(truth_spec)[0])
-    if truth.poses is None:
-        raise ValueError(f"--truth {truth_spec}: has no groundtruth.txt to check against")
+    labelled, truth = Sequence.load(out), truth_sequence(truth_spec)
     at = {round(float(s), 3): k for k, s in enumerate(truth.stamps)}
     cache = FeatureCache(make_detector(FRONTEND_DEFAULTS["detector"], {"max_keypoints": FRONTEND_DEFAULTS["max_keypoints"]}))
     rot, direction, same, total = [], [], 0, 0
@@ -182,6 +185,8 @@ def main(args: argparse.Namespace) -> int:
                   () if ours else OUTPUTS)
     if out.is_dir() and any(out.iterdir()) and not ours:
         raise ValueError(f"OUT_DIR {out} holds files nmnet label did not write: give a new or empty folder")
+    if args.truth:
+        truth_sequence(args.truth)
     frames, camera = frames_of(source, args)
     if camera is None:
         raise ValueError(f"{source}: no camera_info in the recording; give its calibration with --camera")
