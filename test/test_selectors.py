@@ -287,6 +287,8 @@ def test_a_change_while_a_frame_is_related_applies_from_the_next_frame():
     fe.settings = type(fe.settings)(fe.settings.config, fe.settings.detector, select_then_change)
     assert fe.process(seq.image(11), 0.1).status == "ok"
     assert fe.config["min_matches"] == 100000 and fe.process(seq.image(12), 0.2).status == "too_few_matches"
+    with pytest.raises(TypeError):  # a view of the settings, not a copy to change: changes go through reconfigure
+        fe.config["min_matches"] = 8
 
 
 def test_a_detector_swap_between_the_two_stages_starts_a_new_chain():

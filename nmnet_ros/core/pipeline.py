@@ -13,8 +13,9 @@ stage when that shortens the slower stage (2000 keypoints: matching grows with N
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import cv2
 import numpy as np
@@ -212,9 +213,10 @@ class Frontend:
         self._motion: np.ndarray | None = None  # the last pair's translation direction, when that pair had a pose
 
     @property
-    def config(self) -> dict:
-        """The current settings (a copy: change them with :meth:`reconfigure`)."""
-        return dict(self.settings.config)
+    def config(self) -> Mapping:
+        """The current settings, read-only (change them with :meth:`reconfigure`); a view, not a copy: the node reads
+        it for every frame."""
+        return MappingProxyType(self.settings.config)
 
     @property
     def detector(self) -> Detector:
