@@ -39,7 +39,7 @@ class Experiment:
 
     what: str
     args: tuple[str, ...]
-    render: Callable[[dict], str]
+    render: Callable[[dict], str] | None  # None: a part of a COMBINED table
     needs_data: bool = False
 
 
@@ -170,9 +170,9 @@ EXPERIMENTS: dict[str, Experiment] = {
         "nmnet label on KITTI-07 frames 0-119 with the ground truth withheld, checked against it afterwards",
         ("label", f"{DATA}/kitti-07:0-119", "{tmp}/labelled", "--truth", f"{DATA}/kitti-07", "--json", "{out}"),
         render_labels, needs_data=True),
-    "threshold-0.15px": Experiment("pose_threshold_px at its default, on training pairs", _threshold_run("0.15"),
-                                   lambda r: "", needs_data=True),
-    "threshold-1px": Experiment("pose_threshold_px at 1 px, on training pairs", _threshold_run("1.0"), lambda r: "",
+    "threshold-0.15px": Experiment("pose_threshold_px at its default, on training pairs", _threshold_run("0.15"), None,
+                                   needs_data=True),
+    "threshold-1px": Experiment("pose_threshold_px at 1 px, on training pairs", _threshold_run("1.0"), None,
                                 needs_data=True),
     "speed": Experiment(
         "per-stage times and the pipelined rate on this machine, beside the classic pipeline in the same process",

@@ -52,12 +52,9 @@ class ParamsFileError(ValueError):
     """A parameters file that cannot be read, or holds a value the node would refuse."""
 
 
-def check_value(name: str, value: object) -> str | None:
-    """Why the node would refuse ``value`` for parameter ``name`` (None: it takes it), as rclpy and the node check.
-
-    Types are strict, as rclpy's: a float parameter given an integer is refused (write ``1.0``).
-    """
-    return problem(name, value)
+# Why the node would refuse a value for a parameter (None: it takes it), as rclpy and the node check: types strict,
+# as rclpy's (a float parameter given an integer is refused: write ``1.0``).
+check_value = problem
 
 
 def _sections(doc: object, path: Path) -> list[dict]:
