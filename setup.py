@@ -33,6 +33,7 @@ setup(
         "mcap>=1.1,<2",
         "mcap-ros2-support>=0.5,<1",
         "pycolmap>=4.2,<5",  # nmnet label: reconstruction of unlabeled recordings
+        "ray>=2.40,<3",  # nmnet replay over many recordings
     ],
     extras_require={
         "ros": [f"ros-{name}; sys_platform == 'linux' and platform_machine == 'x86_64'" for name in

@@ -62,6 +62,8 @@ def written_here(path: Path) -> bool:
             return isinstance(doc, dict) and str(doc.get("written_by", "")).startswith(LIBRARY)
         if path.suffix == ".png":
             return (_png_software(path) or "").startswith(LIBRARY)
+        if path.suffix == ".md":
+            return f"<!-- written by {LIBRARY}" in path.read_text()
         if path.suffix == ".pt" and zipfile.is_zipfile(path):  # torch.save's archive: the pickle is stored, not deflated
             with zipfile.ZipFile(path) as z:
                 pickles = [z.read(n) for n in z.namelist() if n.endswith("data.pkl")]
@@ -170,6 +172,12 @@ def write_json(path: Path, doc: dict) -> None:
         return None if isinstance(v, float) and not math.isfinite(v) else v
 
     text = json.dumps(clean({"written_by": written_by(), **doc}), indent=1, allow_nan=False)
+    replace_atomically(path, lambda tmp: tmp.write_text(text))
+
+
+def write_markdown(path: Path, text: str) -> None:
+    """``text`` as a Markdown file, marked in a closing comment (invisible when rendered)."""
+    text = f"{text.rstrip()}\n\n<!-- written by {written_by()} -->\n"
     replace_atomically(path, lambda tmp: tmp.write_text(text))
 
 

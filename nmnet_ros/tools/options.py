@@ -169,9 +169,15 @@ SEQS = f"sequence folders (optional frame range): {FOLDERS_READ}"
 
 def replay(p: argparse.ArgumentParser) -> None:
     """``nmnet replay``."""
-    p.add_argument("bag", type=Path, help=".bag, .db3 or .mcap file, a ROS 2 bag directory, or a folder of a ROS 1 "
-                   "recording's parts (rosbag record --split)")
-    p.add_argument("--out", type=file_path, required=True, help="output .mcap with matches and relative poses")
+    p.add_argument("recordings", nargs="*", metavar="BAG", help=".bag, .db3 or .mcap file, a ROS 2 bag directory, or a "
+                   "folder of a ROS 1 recording's parts (rosbag record --split); several (or a quoted glob): replayed in "
+                   "parallel on Ray, one task per recording")
+    p.add_argument("--out", required=True, help="output .mcap with matches and relative poses; with "
+                   "several recordings the run's folder: OUT/NAME/ per recording, OUT/report.json, .md, .png")
+    p.add_argument("--manifest", type=Path, default=None, metavar="FILE",
+                   help="more recordings, one path or glob per line (relative to FILE's folder; # comments)")
+    p.add_argument("--ray-address", default=None, metavar="ADDRESS", help="several recordings: the Ray cluster to run "
+                   "on (default: $RAY_ADDRESS, else a local Ray runtime on this machine's cores)")
     p.add_argument("--json", type=file_path, default=None, help="write the summary as JSON")
     p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots, named errors.png, trajectory.png, "
                    "matches.png (default: --out's folder, named after it: OUT_errors.png, ...)")

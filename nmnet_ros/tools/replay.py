@@ -153,6 +153,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     for w in [*reader.new_warnings(), truth_missed(truth, [s.stamp for s in run.steps]), window_missed(window, n_frames)]:
         if w:
             log(f"warning: {w}")
+            run.recording_warnings.append(w)
     return run, n_frames, overlay
 
 
@@ -229,7 +230,27 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
 
 
 def main(args: argparse.Namespace) -> int:
-    """Entry point of ``nmnet replay``: offline through the front end here, or ``--live`` through the node."""
+    """Entry point of ``nmnet replay``: one recording here, several (a glob, ``--manifest``) on Ray."""
+    import glob
+
+    from .options import file_path
+
+    if args.manifest is not None or len(args.recordings) > 1 or any(map(glob.has_magic, args.recordings)):
+        from . import fleet
+
+        args.out = Path(args.out)
+        return fleet.run(args)
+    if not args.recordings:
+        raise ValueError("name a recording to replay (a bag file or folder), or --manifest FILE")
+    try:
+        args.bag, args.out = Path(args.recordings[0]), file_path(str(args.out))
+    except argparse.ArgumentTypeError as e:
+        raise ValueError(f"--out {e}") from None
+    return replay_recording(args)
+
+
+def replay_recording(args: argparse.Namespace) -> int:
+    """One recording: offline through the front end here, or ``--live`` through the node."""
     reader = BagReader(args.bag)  # a missing or unreadable bag stops here
     plots_dir, plots_prefix = check_outputs(args, [reader.path, *reader.files, args.gt, args.camera, args.params_file,
                                                    args.weights])

@@ -123,6 +123,7 @@ class Run:
     def __init__(self, name: str) -> None:
         self.name = name
         self.warnings: dict[str, int] = {}  # per kind, as :class:`Notes` counted them
+        self.recording_warnings: list[str] = []  # about the recording as a whole: damaged, ground truth missing
         self.steps: list[Step] = []
         self.scores = PairScores()
         self.tracks = TrackLengths()
@@ -146,5 +147,6 @@ class Run:
             "fps": len(self.steps) / self.seconds if self.seconds else 0.0, **self.scores.summary(),
             "matches_per_frame": float(np.mean([s.matches for s in related])) if related else 0.0,
             "selected_per_frame": float(np.mean([s.selected for s in related])) if related else 0.0,
-            "status": statuses, "warnings": dict(self.warnings), "tracks": self.tracks.summary(),
+            "status": statuses, "warnings": dict(self.warnings), "recording_warnings": list(self.recording_warnings),
+            "tracks": self.tracks.summary(),
         }

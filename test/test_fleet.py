@@ -1,0 +1,245 @@
+"""``nmnet replay`` over many recordings on Ray: a real Ray head and worker on localhost, real bags, real kills."""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from nmnet_ros.tools import fleet
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "nmnet_ros" / "sample" / "kitti07_120-159"
+BIN = Path(sys.executable).parent
+TIMING = ("fps",)  # the only summary numbers that depend on the machine's load
+
+
+def _copies(folder: Path, n: int) -> list[Path]:
+    """``n`` copies of the sample bag, the last ``truncated`` (cut inside its messages)."""
+    out = []
+    for i in range(n):
+        dst = folder / f"drive{i}"
+        shutil.copytree(SAMPLE, dst)
+        out.append(dst)
+    cut = folder / "truncated"
+    shutil.copytree(SAMPLE, cut)
+    mcap = next(cut.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: 3_000_000])
+    return [*out, cut]
+
+
+def _nmnet(*args: str, env: dict | None = None, timeout: float = 600) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / "nmnet"), *args], capture_output=True, text=True, env=env, timeout=timeout)
+
+
+def _comparable(summary: dict) -> dict:
+    return {k: v for k, v in summary.items() if k not in TIMING and k != "written_by"}
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory) -> list[Path]:
+    return _copies(tmp_path_factory.mktemp("fleet"), 3)
+
+
+@pytest.fixture(scope="module")
+def serial(bags, tmp_path_factory) -> dict[str, dict]:
+    """Each recording replayed alone, as a shell loop would: the results a fleet run must reproduce."""
+    out = tmp_path_factory.mktemp("serial")
+    results = {}
+    for bag in bags:
+        r = _nmnet("replay", str(bag), "--out", str(out / f"{bag.name}.mcap"), "--json", str(out / f"{bag.name}.json"),
+                   "--no-progress")
+        assert r.returncode == 0, r.stderr
+        results[bag.name] = json.loads((out / f"{bag.name}.json").read_text())
+    return results
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A Ray head (no CPUs of its own) and one worker node with one CPU, on localhost, token-authenticated as Ray's
+    local clusters are: the address and the environment a client needs."""
+    env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32), "RAY_USAGE_STATS_ENABLED": "0"}
+    port = _free_port()
+    ray = str(BIN / "ray")
+    common = ("--node-ip-address", "127.0.0.1", "--disable-usage-stats")
+    head = subprocess.run([ray, "start", "--head", "--port", str(port), "--num-cpus", "0", "--include-dashboard", "false",
+                           *common],
+                          capture_output=True, text=True, env=env, timeout=180)
+    assert head.returncode == 0, head.stderr
+    try:
+        worker = subprocess.run([ray, "start", "--address", f"127.0.0.1:{port}", "--num-cpus", "1", *common],
+                                capture_output=True, text=True, env=env, timeout=180)
+        assert worker.returncode == 0, worker.stderr
+        yield f"127.0.0.1:{port}", env
+    finally:
+        subprocess.run([ray, "stop", "--force"], capture_output=True, env=env, timeout=120)
+
+
+def _worker_pids(task: str = "replay_one") -> list[int]:
+    """The Ray worker processes running ``task`` now (Ray names a busy worker's process ``ray::TASK``)."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and (proc / "cmdline").read_bytes().startswith(f"ray::{task}".encode()):
+                pids.append(int(proc.name))
+        except OSError:
+            continue
+    return pids
+
+
+@pytest.mark.slow
+def test_a_cluster_replays_every_recording_as_a_serial_replay_does_and_reports_the_truncated_one(
+        bags, serial, cluster, tmp_path):
+    address, env = cluster
+    run = tmp_path / "run"
+    r = _nmnet("replay", *map(str, bags), "--out", str(run), "--ray-address", address, "--no-progress", env=env)
+    assert r.returncode == 0, r.stdout + r.stderr
+    for bag in bags:
+        summary = json.loads((run / bag.name / "summary.json").read_text())
+        assert _comparable(summary) == _comparable(serial[bag.name]), bag.name
+        assert {p.name for p in (run / bag.name).iterdir()} >= {"nmnet.mcap", "summary.json", "replay.log", "errors.png"}
+    report = json.loads((run / "report.json").read_text())
+    rows = {row["name"]: row for row in report["recordings"]}
+    assert [row["name"] for row in report["recordings"]] == [b.name for b in bags]  # the order given
+    assert all(row["status"] == "ok" for row in rows.values())
+    assert any("truncated" in w for w in rows["truncated"]["recording_warnings"])  # said, and in the table
+    assert "truncated" in (run / "report.md").read_text().split("| truncated |")[1].splitlines()[0]
+    assert rows["drive0"]["frames"] == 40 and rows["truncated"]["frames"] < 40
+    assert report["totals"]["processed"] == sum(s["processed"] for s in serial.values())
+    assert not list(run.glob(".partial-*"))
+
+    again = _nmnet("replay", *map(str, bags), "--out", str(run), "--ray-address", "127.0.0.1:1", env=env)  # no Ray
+    assert again.returncode == 0, again.stderr  # every recording complete: skipped, no cluster needed
+    assert f"{len(bags)} of {len(bags)} recordings complete" in again.stdout
+    assert all(row.get("skipped") for row in json.loads((run / "report.json").read_text())["recordings"])
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_recording_is_retried_and_every_result_comes(bags, serial, cluster, tmp_path):
+    address, env = cluster
+    run = tmp_path / "run"
+    clean = bags[:3]
+    proc = subprocess.Popen([str(BIN / "nmnet"), "replay", *map(str, clean), "--out", str(run), "--ray-address",
+                             address, "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    killed = []
+    deadline = time.monotonic() + 300
+    while not killed and time.monotonic() < deadline and proc.poll() is None:
+        if list(run.glob(".partial-*")) and _worker_pids():  # a recording is being written
+            time.sleep(1.0)
+            for pid in _worker_pids():
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+        time.sleep(0.2)
+    out, _ = proc.communicate(timeout=600)
+    assert killed, "no worker was seen running a recording"
+    assert proc.returncode == 0, out
+    for bag in clean:
+        assert _comparable(json.loads((run / bag.name / "summary.json").read_text())) == _comparable(serial[bag.name])
+    assert not list(run.glob(".partial-*"))  # the killed attempt's half-made folder is gone
+
+
+@pytest.mark.slow
+def test_the_local_runtime_reports_a_failed_recording_without_stopping_the_others(bags, tmp_path):
+    """No address: Ray starts on this machine. A recording that cannot be read is a failed row; the others
+    complete."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    run = tmp_path / "run"
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    r = _nmnet("replay", str(bags[0]), str(empty), "--out", str(run), "--no-progress", env=env)
+    assert r.returncode == 1, r.stdout + r.stderr  # some failed
+    rows = {row["name"]: row for row in json.loads((run / "report.json").read_text())["recordings"]}
+    assert rows["drive0"]["status"] == "ok" and (run / "drive0" / "nmnet.mcap").is_file()
+    assert rows["empty"]["status"] == "failed" and "holds no .mcap" in rows["empty"]["error"]
+    assert "failed: empty" in r.stderr and (run / "empty.failed.log").is_file() and not (run / "empty").exists()
+
+
+
+@pytest.mark.slow
+def test_ctrl_c_keeps_the_finished_recordings_whole_and_reports_the_rest(bags, cluster, tmp_path):
+    address, env = cluster  # one worker with one CPU: one recording at a time
+    run2 = tmp_path / "run"
+    proc = subprocess.Popen([str(BIN / "nmnet"), "replay", *map(str, bags), "--out", str(run2), "--no-progress",
+                             "--ray-address", address],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # as at a terminal
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None and not any(
+            (run2 / b.name / "summary.json").is_file() for b in bags):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=300)
+    report = json.loads((run2 / "report.json").read_text())
+    finished = [row["name"] for row in report["recordings"] if row["status"] == "ok"]
+    assert finished, out
+    for name in finished:  # whole: what a complete replay writes
+        assert json.loads((run2 / name / "summary.json").read_text())["frames"] > 0
+    assert proc.returncode == 130, out  # one at a time: the last of four recordings has not started yet
+    assert any(row["status"] == "interrupted" for row in report["recordings"])
+    assert not list(run2.glob(".partial-*"))
+
+
+def test_recordings_come_from_paths_globs_and_a_manifest_each_once(tmp_path):
+    for name in ("a.mcap", "b.mcap", "c.db3"):
+        (tmp_path / name).write_bytes(b"")
+    manifest = tmp_path / "list.txt"
+    manifest.write_text("# the fleet\nb.mcap\n\n*.db3\n")
+    got = fleet.recordings([str(tmp_path / "*.mcap")], manifest)
+    assert [p.name for p in got] == ["a.mcap", "b.mcap", "c.db3"]  # b.mcap once, at its first place
+    with pytest.raises(ValueError, match="matches no recording"):
+        fleet.recordings([str(tmp_path / "*.bag")], None)
+    (tmp_path / "none.txt").write_text("# nothing\n")
+    with pytest.raises(ValueError, match="lists no recording"):
+        fleet.recordings([], tmp_path / "none.txt")
+
+
+def test_recordings_of_the_same_name_get_folders_of_their_own():
+    assert fleet.names_of([Path("x/run.mcap"), Path("y/run.mcap"), Path("z/run"), Path("w/other.bag")]) == [
+        "run", "run-2", "run-3", "other"]
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    (["--json", "s.json"], "--json: not with several recordings"),
+    (["--gt", "gt.txt"], "ground truth must be in its bag"),
+    (["--live"], "--live: one recording at a time"),
+])
+def test_options_a_fleet_run_cannot_honour_are_refused_before_any_work(tmp_path, extra, message):
+    r = _nmnet("replay", str(SAMPLE), str(SAMPLE / "metadata.yaml"), "--out", str(tmp_path / "run"), *extra)
+    assert r.returncode == 2 and message in r.stderr, r.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_fleet_out_is_a_folder_and_never_an_input(tmp_path):
+    r = _nmnet("replay", str(SAMPLE), str(tmp_path), "--out", str(tmp_path / "run.mcap"))
+    assert r.returncode == 2 and "--out is the run's folder" in r.stderr
+    r = _nmnet("replay", str(SAMPLE), str(tmp_path), "--out", str(tmp_path))
+    assert r.returncode == 2 and "--out" in r.stderr and "input" in r.stderr, r.stderr
+
+
+def test_the_report_totals_the_finished_recordings_and_names_the_failed():
+    rows = [{"name": "a", "status": "ok", "frames": 40, "processed": 40, "dropped": 0, "auc5": 80.0, "fps": 4.0,
+             "seconds": 10.0},
+            {"name": "b", "status": "ok", "frames": 20, "processed": 18, "dropped": 2, "auc5": None, "fps": 6.0,
+             "seconds": 3.0},
+            {"name": "c", "status": "failed", "error": "BagError: unreadable"},
+            {"name": "d", "status": "interrupted"}]
+    t = fleet.totals(rows)
+    assert t == {"recordings": 4, "ok": 2, "failed": 1, "interrupted": 1, "frames": 60, "processed": 58, "dropped": 2,
+                 "mean_auc5": 80.0, "fps": 58 / 13.0}
+    table = fleet.report_table({"recordings": rows, "totals": t})
+    assert "| c | failed |" in table and "BagError: unreadable" in table and "1 not run (interrupted)" in table
