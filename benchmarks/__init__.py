@@ -14,6 +14,7 @@ import json
 import os
 import platform
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -42,7 +43,8 @@ class Experiment:
     render: Callable[[dict], str] | None  # None: a part of a COMBINED table
     needs_data: bool = False
     steps: tuple[tuple[str, ...], ...] = ()  # several commands, each timed, one after the other
-    combine: Callable[[Path], dict] | None = None  # the result from the steps' outputs in {tmp}
+    combine: Callable[[Path, list[dict]], dict] | None = None  # the result from the steps' outputs in {tmp} and times
+    prepare: Callable[[Path], None] | None = None  # makes the steps' inputs in {tmp}
 
 
 def _pct(x: float | None) -> str:
@@ -176,7 +178,7 @@ def _adaptation_steps() -> tuple[tuple[str, ...], ...]:
     return tuple(steps)
 
 
-def _adaptation_result(tmp: Path) -> dict:
+def _adaptation_result(tmp: Path, _steps: list[dict]) -> dict:
     """The three evaluations and the labelling summary."""
     runs = {run: json.loads((tmp / f"eval-{run}.json").read_text()) for run in ADAPT_RUNS}
     for r in runs.values():
@@ -204,6 +206,43 @@ def render_adaptation(r: dict) -> str:
     return "\n".join(rows) + f"\n\n{pairs} pairs of KITTI-07 frames 120-159 (gaps 1-10), scored with the real ground truth."
 
 
+FLEET_COPIES = 8  # recordings of the fleet benchmark: copies of the sample bag
+
+
+def _fleet_copies(tmp: Path) -> None:
+    for i in range(FLEET_COPIES):
+        shutil.copytree(SAMPLE, tmp / f"rec{i}")
+
+
+def _fleet_steps() -> tuple[tuple[str, ...], ...]:
+    """A shell loop running ``nmnet replay`` once per recording, then one ``nmnet replay`` of them all (local Ray)."""
+    loop = tuple(("replay", f"{{tmp}}/rec{i}", "--out", f"{{tmp}}/loop/rec{i}.mcap", "--no-progress")
+                 for i in range(FLEET_COPIES))
+    return (*loop, ("replay", *(f"{{tmp}}/rec{i}" for i in range(FLEET_COPIES)), "--out", "{tmp}/fleet", "--no-progress"))
+
+
+def _fleet_result(tmp: Path, steps: list[dict]) -> dict:
+    """Both ways' wall times, their ratio and the fleet run's frames (from its report)."""
+    report = json.loads((tmp / "fleet" / "report.json").read_text())
+    loop_s, fleet_s = sum(s["seconds"] for s in steps[:-1]), steps[-1]["seconds"]
+    return {"recordings": FLEET_COPIES, "loop_seconds": round(loop_s, 1), "fleet_seconds": fleet_s,
+            "ratio": loop_s / fleet_s, "frames": report["totals"]["processed"], "cores": os.cpu_count(),
+            "fleet_peak_memory_mb": steps[-1]["peak_memory_mb"]}
+
+
+def render_fleet(r: dict) -> str:
+    """The fleet run beside a shell loop, and what it means for a fleet's hours of video."""
+    per_core = r["frames"] / r["fleet_seconds"] / r["cores"]  # frames a core replays per second, start-up included
+    core_hours = 36000 / per_core / 3600  # per hour of 10 Hz video
+    return (f"| {r['recordings']} copies of the sample bag ({r['frames']} frames) | wall time | |\n|---|---|---|\n"
+            f"| shell loop: `nmnet replay` once per recording | {r['loop_seconds']:.0f} s | 1.00x |\n"
+            f"| one `nmnet replay` of all of them (local Ray, {r['cores']} cores) | {r['fleet_seconds']:.0f} s | "
+            f"{r['ratio']:.2f}x |\n\nA core replays {per_core:.1f} frames/s here (start-up included): one hour of "
+            f"10 Hz video (36,000 frames) takes {core_hours:.1f} core-hours, so N hours of a fleet's video take "
+            f"N x {core_hours:.1f} core-hours: 200 one-hour recordings in 8 hours need about "
+            f"{200 * core_hours / 8:.0f} such cores.")
+
+
 EXPERIMENTS: dict[str, Experiment] = {
     "sample-bag": Experiment(
         "the bundled sample bag offline, the default front end beside SIFT + ratio + MAGSAC++ on the same frames",
@@ -227,6 +266,9 @@ EXPERIMENTS: dict[str, Experiment] = {
         "weights that never saw KITTI, adapted to KITTI-07 with nmnet label's labels, beside the same fine-tune on "
         "the real ground truth", (), render_adaptation, needs_data=True, steps=_adaptation_steps(),
         combine=_adaptation_result),
+    "fleet": Experiment(
+        f"{FLEET_COPIES} recordings replayed by one command on the local Ray runtime, beside a shell loop over them",
+        (), render_fleet, steps=_fleet_steps(), combine=_fleet_result, prepare=_fleet_copies),
     "threshold-0.15px": Experiment("pose_threshold_px at its default, on training pairs", _threshold_run("0.15"), None,
                                    needs_data=True),
     "threshold-1px": Experiment("pose_threshold_px at 1 px, on training pairs", _threshold_run("1.0"), None,
@@ -313,9 +355,11 @@ def run(name: str) -> Path:
 
         source, t0 = provenance(), time.perf_counter()
         if exp.steps:
+            if exp.prepare is not None:
+                exp.prepare(Path(tmp))
             steps = [[a.format(out=out, tmp=tmp) for a in step] for step in exp.steps]
             timed = [{"command": shown(step), **_timed(step)} for step in steps]
-            result, command = {**exp.combine(Path(tmp)), "steps": timed}, " && ".join(t["command"] for t in timed)
+            result, command = {**exp.combine(Path(tmp), timed), "steps": timed}, " && ".join(t["command"] for t in timed)
         else:
             args = [a.format(out=out, tmp=tmp) for a in exp.args]
             subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", *args], cwd=ROOT, check=True)

@@ -22,6 +22,7 @@ import sys
 import time
 import traceback
 import uuid
+from collections.abc import Callable
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
@@ -74,10 +75,10 @@ def names_of(paths: list[Path]) -> list[str]:
     return names
 
 
-def replay_one(args: argparse.Namespace, recording: Path, run_dir: Path, name: str) -> dict:
-    """Replay one recording into ``run_dir/name`` (a Ray task; runs in a worker): its report row."""
-    from .replay import replay_recording
-
+def replay_one(replay: Callable[[argparse.Namespace], int], args: argparse.Namespace, recording: Path, run_dir: Path,
+               name: str) -> dict:
+    """Replay one recording into ``run_dir/name`` with ``replay`` (one recording's replay; this is a Ray task, run in
+    a worker): its report row."""
     building = run_dir / f"{PARTIAL}{name}-{uuid.uuid4().hex[:8]}"
     building.mkdir()
     one = copy.copy(args)
@@ -86,7 +87,7 @@ def replay_one(args: argparse.Namespace, recording: Path, run_dir: Path, name: s
     t0 = time.perf_counter()
     with open(building / "replay.log", "w") as log, redirect_stdout(log), redirect_stderr(log):
         try:
-            rc = replay_recording(one)
+            rc = replay(one)
             error = None if rc == 0 else f"replay ended with code {rc}"
         except Exception as e:  # noqa: BLE001 - one recording's failure is its row, not the run's end
             traceback.print_exc()
@@ -157,9 +158,9 @@ def _init_ray(address: str | None) -> None:
              configure_logging=True, **local)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Replay every recording of ``args`` (``recordings``, ``manifest``) in parallel; 0 when all are complete,
-    1 when some failed, 130 when interrupted."""
+def run(args: argparse.Namespace, replay: Callable[[argparse.Namespace], int]) -> int:
+    """Replay every recording of ``args`` (``recordings``, ``manifest``) in parallel, each with ``replay`` (one
+    recording's); 0 when all are complete, 1 when some failed, 130 when interrupted."""
     inputs = recordings(args.recordings, args.manifest)
     check_args(args, inputs)
     for key in PATH_OPTIONS:  # workers may run elsewhere, in another folder
@@ -182,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
               "folder to replay it again)")
     interrupted = False
     if todo:
-        interrupted = _run_tasks(args, run_dir, todo, rows)
+        interrupted = _run_tasks(args, replay, run_dir, todo, rows)
     ordered = [rows.get(n, {"name": n, "recording": str(p), "status": "interrupted"}) for n, p in zip(names, inputs, strict=True)]
     report = write_report(run_dir, ordered)
     print(report_table(report))
@@ -192,7 +193,8 @@ def run(args: argparse.Namespace) -> int:
     return 1 if report["totals"]["failed"] else 0
 
 
-def _run_tasks(args: argparse.Namespace, run_dir: Path, todo: list[tuple[str, Path]], rows: dict[str, dict]) -> bool:
+def _run_tasks(args: argparse.Namespace, replay: Callable[[argparse.Namespace], int], run_dir: Path,
+               todo: list[tuple[str, Path]], rows: dict[str, dict]) -> bool:
     """Run the recordings of ``todo`` as Ray tasks, filling ``rows`` as they finish; True when interrupted."""
     import signal
 
@@ -206,7 +208,7 @@ def _run_tasks(args: argparse.Namespace, run_dir: Path, todo: list[tuple[str, Pa
             signal.signal(signum, handler)
     task = ray.remote(num_cpus=1, max_retries=RETRIES)(replay_one)
     shared = ray.put(args)
-    pending = {task.remote(shared, path, run_dir, name): (name, path) for name, path in todo}
+    pending = {task.remote(replay, shared, path, run_dir, name): (name, path) for name, path in todo}
     bar = tqdm(total=len(todo), desc="recordings", unit="rec", file=sys.stderr, disable=None if not args.no_progress else True)
     interrupted = False
     try:

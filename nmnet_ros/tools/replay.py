@@ -239,7 +239,7 @@ def main(args: argparse.Namespace) -> int:
         from . import fleet
 
         args.out = Path(args.out)
-        return fleet.run(args)
+        return fleet.run(args, replay_recording)
     if not args.recordings:
         raise ValueError("name a recording to replay (a bag file or folder), or --manifest FILE")
     try:
