@@ -227,7 +227,7 @@ def _fleet_result(tmp: Path, steps: list[dict]) -> dict:
     loop_s, fleet_s = sum(s["seconds"] for s in steps[:-1]), steps[-1]["seconds"]
     return {"recordings": FLEET_COPIES, "loop_seconds": round(loop_s, 1), "fleet_seconds": fleet_s,
             "ratio": loop_s / fleet_s, "frames": report["totals"]["processed"], "cores": os.cpu_count(),
-            "fleet_peak_memory_mb": steps[-1]["peak_memory_mb"]}
+            "driver_peak_memory_mb": steps[-1]["peak_memory_mb"]}  # the command's own (its report: summaries only)
 
 
 def render_fleet(r: dict) -> str:
@@ -388,7 +388,8 @@ def rendered(name: str) -> str:
         return COMBINED[name][1]()
     stored = _stored(name)
     p = stored["provenance"]
-    return (EXPERIMENTS[name].render(stored["result"]) + f"\n\n<sub>{stored['what'].capitalize()}. Measured on "
+    what = stored["what"][0].upper() + stored["what"][1:]  # its names as they are written (KITTI, nmnet)
+    return (EXPERIMENTS[name].render(stored["result"]) + f"\n\n<sub>{what}. Measured on "
             f"{p['machine']['cpu']} ({p['machine']['cores']} cores) by `{p['command']}`; stored with its provenance in "
             f"`benchmarks/results/{name}.json`, rerun with `python -m benchmarks run {name}`.</sub>\n")
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 
@@ -71,6 +72,15 @@ def test_a_bag_is_labelled_with_its_camera_info_and_a_standing_camera_is_refused
     (theirs / "notes.txt").write_text("mine")
     r = nmnet("label", str(bag), str(theirs))
     assert r.returncode == 2 and "did not write" in r.stderr and (theirs / "notes.txt").read_text() == "mine"
+    cut = tmp_path / "cut"  # a recording cut short: its readable part is labelled, and the cut is said
+    shutil.copytree(bag, cut)
+    mcap = next(cut.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size * 2 // 3])
+    r = nmnet("label", str(cut), str(tmp_path / "from_cut"))
+    assert r.returncode == 0 and "truncated" in r.stderr, r.stderr
+    assert 2 <= len(Sequence.load(tmp_path / "from_cut").paths) < 20
+    r = nmnet("label", str(bag), "/proc/nmnet/labelled")  # not writable, even by root
+    assert r.returncode == 2 and "OUT_DIR /proc/nmnet/labelled: cannot write in /proc/nmnet" in r.stderr, r.stderr
     images = tmp_path / "images"
     images.mkdir()
     (images / "a.png").write_bytes((data_dir("kitti-07") / "images" / "000000.png").read_bytes())

@@ -9,6 +9,7 @@ model is kept. :func:`quality_problem` says when a reconstruction cannot be trus
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,12 +53,17 @@ def colmap_camera(camera: Camera) -> tuple[str, list[float]]:
 MAPPERS = ("global", "incremental")
 
 
+STAGES = ("features", "matching", "mapping")  # what reconstruct() says it starts, in order
+
+
 def reconstruct(image_dir: Path, names: list[str], camera: Camera, work_dir: Path, refine_intrinsics: bool = False,
-                overlap: int = 10, threads: int = 0, mapper: str = "global") -> Reconstruction:
+                overlap: int = 10, threads: int = 0, mapper: str = "global",
+                stage: Callable[[str], object] = lambda _name: None) -> Reconstruction:
     """COLMAP SIFT features, sequential matching of each keyframe with its ``overlap`` successors, and a mapper with
     ``camera``'s calibration fixed (refined too with ``refine_intrinsics``): ``global`` (GLOMAP: rotation averaging,
     then global positioning; the default, as on a driving sequence the incremental mapper bent the first half of
-    KITTI-07 0-59 by up to 70 degrees) or ``incremental``. ReconstructionError when no model comes out."""
+    KITTI-07 0-59 by up to 70 degrees) or ``incremental``. ``stage`` is told each of STAGES as it starts (a progress
+    bar). ReconstructionError when no model comes out."""
     import pycolmap
 
     pycolmap.logging.minloglevel = 2  # COLMAP logs every image at INFO; warnings and errors still show
@@ -72,13 +78,16 @@ def reconstruct(image_dir: Path, names: list[str], camera: Camera, work_dir: Pat
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = threads or os.cpu_count() or 1
     extraction.use_gpu = False
+    stage(STAGES[0])
     pycolmap.extract_features(database, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                               reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
     pairing = pycolmap.SequentialPairingOptions()
     pairing.overlap = overlap
     matching = pycolmap.FeatureMatchingOptions()
     matching.use_gpu = False
+    stage(STAGES[1])
     pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+    stage(STAGES[2])
     if mapper == "global":
         options = pycolmap.GlobalPipelineOptions()
         ba = options.mapper.bundle_adjustment

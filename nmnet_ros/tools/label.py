@@ -27,7 +27,7 @@ from ..io.bags import BAG_SUFFIXES, BagReader, read_frames
 from ..io.datasets import Sequence, epipolar_labels, read_camera_yaml, write_camera_yaml
 from ..io.outputs import not_an_input, output_file, output_folder, write_json, written_here
 from ..io.pairs import parse_seq_spec
-from ..io.reconstruction import ReconstructionError, quality_problem, reconstruct
+from ..io.reconstruction import STAGES, ReconstructionError, quality_problem, reconstruct
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
 MIN_PARALLAX_PX = 0.5  # median between consecutive keyframes; KITTI at 10 Hz has >= 1.7 px, a standing MAV 0.07
@@ -47,6 +47,8 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
                 if f.image is not None and (camera is not None or f.camera is not None):
                     first.setdefault("camera", f.camera)
                     yield f.stamp, f.image
+            for w in reader.new_warnings():  # a recording cut short: its readable part is used, and said
+                print(f"warning: {w}", file=sys.stderr)
         it = from_bag()
         head = next(it, None)
         if head is None:
@@ -190,18 +192,25 @@ def main(args: argparse.Namespace) -> int:
     frames, camera = frames_of(source, args)
     if camera is None:
         raise ValueError(f"{source}: no camera_info in the recording; give its calibration with --camera")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    building = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        building = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    except OSError as e:
+        raise OSError(f"OUT_DIR {out}: cannot write in {out.parent} ({e.strerror}): choose a folder you can write") from None
     not_an_input(building, "OUT_DIR", [source])
+    from tqdm import tqdm
+
     try:
         (building / "images").mkdir()
         stamps, names, parallax = [], [], []
-        for stamp, image in pick_keyframes(frames, args.interval, args.min_flow, args.max_frames, camera, parallax):
-            name = f"{len(names):06d}.png"
-            if not cv2.imwrite(str(building / "images" / name), image):
-                raise OSError(f"cannot write {building / 'images' / name}")
-            stamps.append(stamp)
-            names.append(name)
+        with tqdm(desc="label: keyframes", unit="keyframe", total=args.max_frames, file=sys.stderr, disable=None) as bar:
+            for stamp, image in pick_keyframes(frames, args.interval, args.min_flow, args.max_frames, camera, parallax):
+                name = f"{len(names):06d}.png"
+                if not cv2.imwrite(str(building / "images" / name), image):
+                    raise OSError(f"cannot write {building / 'images' / name}")
+                stamps.append(stamp)
+                names.append(name)
+                bar.update(1)
         if len(names) < 2:
             raise ReconstructionError(f"{source}: {len(names)} keyframe(s); give a longer recording or a shorter "
                                       "--interval")
@@ -211,8 +220,9 @@ def main(args: argparse.Namespace) -> int:
                 f"under {MIN_PARALLAX_PX} px, once its turning is taken out: a standing or only turning camera); poses "
                 "from it would be drawn from noise: record while the robot moves, or skip the still parts (--min-flow)")
         print(f"label: {len(names)} keyframes; reconstructing (COLMAP, {args.mapper} mapper)", file=sys.stderr)
-        rec = reconstruct(building / "images", names, camera, building / "colmap", args.refine_intrinsics,
-                          mapper=args.mapper)
+        with tqdm(desc="label: COLMAP", total=len(STAGES), unit="stage", file=sys.stderr, disable=None) as bar:
+            rec = reconstruct(building / "images", names, camera, building / "colmap", args.refine_intrinsics,
+                              mapper=args.mapper, stage=lambda name: (bar.set_postfix_str(name), bar.update(1)))
         if (why := quality_problem(rec, names)) is not None:
             raise ReconstructionError(f"{source}: {why}")
         shutil.rmtree(building / "colmap")
