@@ -90,7 +90,7 @@ def cluster(tmp_path_factory):
         subprocess.run([ray, "stop", "--force"], capture_output=True, env=env, timeout=120)
 
 
-def _worker_pids(task: str = "replay_one") -> list[int]:
+def _worker_pids(task: str = "run_one") -> list[int]:
     """The Ray worker processes running ``task`` now (Ray names a busy worker's process ``ray::TASK``)."""
     pids = []
     for proc in Path("/proc").iterdir():
@@ -215,8 +215,8 @@ def test_recordings_of_the_same_name_get_folders_of_their_own():
 
 @pytest.mark.parametrize(("extra", "message"), [
     (["--json", "s.json"], "--json: not with several recordings"),
-    (["--gt", "gt.txt"], "ground truth must be in its bag"),
-    (["--live"], "--live: one recording at a time"),
+    (["--gt", "gt.txt"], "--gt: not with several recordings"),
+    (["--live"], "--live: not with several recordings"),
 ])
 def test_options_a_fleet_run_cannot_honour_are_refused_before_any_work(tmp_path, extra, message):
     r = _nmnet("replay", str(SAMPLE), str(SAMPLE / "metadata.yaml"), "--out", str(tmp_path / "run"), *extra)
@@ -226,20 +226,40 @@ def test_options_a_fleet_run_cannot_honour_are_refused_before_any_work(tmp_path,
 
 def test_a_fleet_out_is_a_folder_and_never_an_input(tmp_path):
     r = _nmnet("replay", str(SAMPLE), str(tmp_path), "--out", str(tmp_path / "run.mcap"))
-    assert r.returncode == 2 and "--out is the run's folder" in r.stderr
+    assert r.returncode == 2 and "with several recordings the output is the run's folder" in r.stderr
     r = _nmnet("replay", str(SAMPLE), str(tmp_path), "--out", str(tmp_path))
-    assert r.returncode == 2 and "--out" in r.stderr and "input" in r.stderr, r.stderr
+    assert r.returncode == 2 and "the output" in r.stderr and "an input" in r.stderr, r.stderr
 
 
 def test_the_report_totals_the_finished_recordings_and_names_the_failed():
-    rows = [{"name": "a", "status": "ok", "frames": 40, "processed": 40, "dropped": 0, "auc5": 80.0, "fps": 4.0,
-             "seconds": 10.0},
-            {"name": "b", "status": "ok", "frames": 20, "processed": 18, "dropped": 2, "auc5": None, "fps": 6.0,
-             "seconds": 3.0},
+    from nmnet_ros.tools.replay import FLEET
+
+    rows = [{"name": "a", "status": "ok", "frames": 40, "processed": 40, "dropped": 0, "auc5": 80.0, "fps": 4.0},
+            {"name": "b", "status": "ok", "frames": 20, "processed": 18, "dropped": 2, "auc5": None, "fps": 6.0},
             {"name": "c", "status": "failed", "error": "BagError: unreadable"},
             {"name": "d", "status": "interrupted"}]
-    t = fleet.totals(rows)
+    t = fleet.totals(FLEET, rows)
     assert t == {"recordings": 4, "ok": 2, "failed": 1, "interrupted": 1, "frames": 60, "processed": 58, "dropped": 2,
-                 "mean_auc5": 80.0, "fps": 58 / 13.0}
-    table = fleet.report_table({"recordings": rows, "totals": t})
+                 "auc5": 80.0, "fps": 5.0}  # AUC@5 over the scored recording only
+    table = fleet.report_table(FLEET, {"recordings": rows, "totals": t})
     assert "| c | failed |" in table and "BagError: unreadable" in table and "1 not run (interrupted)" in table
+
+
+@pytest.mark.slow
+def test_label_takes_many_recordings_too_and_names_the_one_it_refuses(tmp_path):
+    """``nmnet label A B C OUT_DIR``: a labelled sequence folder per recording, as ``nmnet label`` of each alone
+    writes it, and a standing camera refused in its row while the others are labelled."""
+    from nmnet_ros.io.datasets import Sequence
+
+    from .conftest import data_dir
+
+    kitti = data_dir("kitti-07")
+    specs = [f"{kitti}:0-14", f"{data_dir('euroc-v101-cam0')}"]
+    run = tmp_path / "labelled"
+    r = _nmnet("label", *specs, str(run), "--interval", "0")
+    assert r.returncode == 1, r.stdout + r.stderr  # one refused
+    rows = {row["name"]: row for row in json.loads((run / "report.json").read_text())["recordings"]}
+    assert rows["kitti-07:0-14"]["status"] == "ok" and rows["kitti-07:0-14"]["registered"] == 15
+    assert len(Sequence.load(run / "kitti-07:0-14").paths) == 15 and (run / "kitti-07:0-14" / "label.log").is_file()
+    assert rows["euroc-v101-cam0"]["status"] == "failed" and "barely moves" in rows["euroc-v101-cam0"]["error"]
+    assert not (run / "euroc-v101-cam0").exists() and not [p for p in run.iterdir() if p.name.startswith(".")]

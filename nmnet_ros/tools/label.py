@@ -28,6 +28,7 @@ from ..io.datasets import Sequence, epipolar_labels, read_camera_yaml, write_cam
 from ..io.outputs import not_an_input, output_file, output_folder, write_json, written_here
 from ..io.pairs import parse_seq_spec
 from ..io.reconstruction import STAGES, ReconstructionError, quality_problem, reconstruct
+from . import fleet
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
 MIN_PARALLAX_PX = 0.5  # median between consecutive keyframes; KITTI at 10 Hz has >= 1.7 px, a standing MAV 0.07
@@ -178,9 +179,36 @@ def truth_check(out: Path, truth_spec: str) -> dict:
             "label_agreement_percent": 100 * same / max(total, 1), "matches": total}
 
 
+def _label_into(args: argparse.Namespace, recording: Path, folder: Path) -> int:
+    """One recording of a fleet run: its labelled sequence folder is ``folder``."""
+    args.recordings, args.manifest, args.out_dir = [str(recording)], None, folder
+    return label_recording(args)
+
+
+def _refused_for_a_fleet(args: argparse.Namespace) -> None:
+    fleet.several_refused(json=args.json, truth=args.truth)
+
+
+FLEET = fleet.Job("label", _label_into, "reconstruction.json", (
+    fleet.Column("keyframes", "keyframes", "{}", "sum"), fleet.Column("registered", "registered", "{}", "sum"),
+    fleet.Column("mean_reprojection_px", "reprojection error (px)", "{:.2f}", "mean")), _refused_for_a_fleet)
+
+
 def main(args: argparse.Namespace) -> int:
-    """Entry point of ``nmnet label``."""
-    source, out = Path(args.recording), Path(args.out_dir)
+    """Entry point of ``nmnet label``: one recording here, several (a glob, ``--manifest``) on Ray."""
+    import glob
+
+    if args.manifest is not None or len(args.recordings) > 1 or any(map(glob.has_magic, args.recordings)):
+        args.out = Path(args.out_dir)
+        return fleet.run(FLEET, args)
+    if not args.recordings:
+        raise ValueError("name a recording to label (a bag, a sequence folder or a folder of images), or --manifest FILE")
+    return label_recording(args)
+
+
+def label_recording(args: argparse.Namespace) -> int:
+    """One recording labelled into ``args.out_dir``."""
+    source, out = Path(args.recordings[0]), Path(args.out_dir)
     output_file(args.json, "--json", "label.json", [Path(parse_seq_spec(str(source))[0])])
     ours = (out / "reconstruction.json").is_file() and written_here(out / "reconstruction.json")  # an earlier label run
     output_folder(out, "OUT_DIR", "the labelled sequence folder", [Path(parse_seq_spec(str(source))[0]), args.camera],

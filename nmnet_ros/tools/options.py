@@ -238,9 +238,15 @@ def make_bag(p: argparse.ArgumentParser) -> None:
 
 def label(p: argparse.ArgumentParser) -> None:
     """``nmnet label``."""
-    p.add_argument("recording", type=Path, metavar="RECORDING", help="a bag (.bag, .db3, .mcap or a bag folder), a "
-                   "sequence folder (its ground truth is not used), or a folder of images with --camera")
-    p.add_argument("out_dir", type=Path, metavar="OUT_DIR", help="the labelled sequence folder to write")
+    p.add_argument("recordings", nargs="*", metavar="RECORDING", help="a bag (.bag, .db3, .mcap or a bag folder), a "
+                   "sequence folder (its ground truth is not used), or a folder of images with --camera; several (or a "
+                   "quoted glob): labelled in parallel on Ray, one task per recording")
+    p.add_argument("out_dir", type=Path, metavar="OUT_DIR", help="the labelled sequence folder to write; with several "
+                   "recordings the run's folder: OUT_DIR/NAME/ per recording, OUT_DIR/report.json, .md, .png")
+    p.add_argument("--manifest", type=Path, default=None, metavar="FILE",
+                   help="more recordings, one path or glob per line (relative to FILE's folder; # comments)")
+    p.add_argument("--ray-address", default=None, metavar="ADDRESS", help="several recordings: the Ray cluster to run "
+                   "on (default: $RAY_ADDRESS, else a local Ray runtime on this machine's cores)")
     p.add_argument("--camera", type=Path, default=None, metavar="YAML",
                    help="calibration (a camera_info YAML, Kalibr, EuRoC or OpenCV file), for a recording without one")
     p.add_argument("--image-topic", default=None, help="a bag's image topic (default: its only camera's)")

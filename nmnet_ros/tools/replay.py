@@ -30,6 +30,7 @@ from ..io.datasets import read_camera_yaml
 from ..io.mcap_out import McapOutput
 from ..io.outputs import not_a_folder, not_an_input, not_someone_elses, output_file, output_folder, write_json
 from ..io.trajectory import Trajectory, read_tum
+from . import fleet
 from .report import PLOTS, print_scores, print_summary, print_tracks, write_plots
 from .scoring import Run, truth_missed, window_missed
 
@@ -236,10 +237,8 @@ def main(args: argparse.Namespace) -> int:
     from .options import file_path
 
     if args.manifest is not None or len(args.recordings) > 1 or any(map(glob.has_magic, args.recordings)):
-        from . import fleet
-
         args.out = Path(args.out)
-        return fleet.run(args, replay_recording)
+        return fleet.run(FLEET, args)
     if not args.recordings:
         raise ValueError("name a recording to replay (a bag file or folder), or --manifest FILE")
     try:
@@ -247,6 +246,23 @@ def main(args: argparse.Namespace) -> int:
     except argparse.ArgumentTypeError as e:
         raise ValueError(f"--out {e}") from None
     return replay_recording(args)
+
+
+def _replay_into(args: argparse.Namespace, recording: Path, folder: Path) -> int:
+    """One recording of a fleet run: its outputs in ``folder`` (nmnet.mcap, summary.json, the plots)."""
+    args.bag, args.out, args.json, args.plots, args.no_progress = (recording, folder / "nmnet.mcap",
+                                                                   folder / "summary.json", folder, True)
+    return replay_recording(args)
+
+
+def _refused_for_a_fleet(args: argparse.Namespace) -> None:
+    fleet.several_refused(json=args.json, plots=args.plots, gt=args.gt, live=args.live)
+
+
+FLEET = fleet.Job("replay", _replay_into, "summary.json", (
+    fleet.Column("frames", "frames", "{}", "sum"), fleet.Column("processed", "processed", "{}", "sum"),
+    fleet.Column("dropped", "dropped", "{}", "sum"), fleet.Column("auc5", "AUC@5", total="mean"),
+    fleet.Column("fps", "frames/s", total="mean")), _refused_for_a_fleet)
 
 
 def replay_recording(args: argparse.Namespace) -> int:
