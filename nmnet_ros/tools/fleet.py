@@ -178,8 +178,9 @@ def _init_ray(address: str | None) -> None:
     import ray
 
     address = address or os.environ.get("RAY_ADDRESS") or None
-    local = {} if address else {"object_store_memory": 100 * 1024**2}  # summaries only: no large objects
-    ray.init(address=address or "local",  # "local": a runtime of its own, even beside a cluster started on this machine include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False,
+    # "local": a runtime of its own, even beside a cluster started on this machine; summaries only: a small store
+    local = {} if address else {"object_store_memory": 100 * 1024**2}
+    ray.init(address=address or "local", include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False,
              configure_logging=True, **local)
 
 
