@@ -274,6 +274,7 @@ class BagReader:
                     elif isinstance(rec, Channel):
                         channels[rec.id] = rec
                     elif isinstance(rec, Message):
+                        n += 1  # every message, read or not: each pass names the damage at the same place
                         ch = channels.get(rec.channel_id)
                         if ch is None or ch.topic not in topics:
                             continue
@@ -281,7 +282,6 @@ class BagReader:
                         msg = (stores["ros1msg"].deserialize_ros1(rec.data, mtype) if ch.message_encoding == "ros1"
                                else stores["ros2msg"].deserialize_cdr(rec.data, mtype))
                         yield RawMessage(ch.topic, mtype, msg, rec.log_time)
-                        n += 1
             except Exception as e:  # noqa: BLE001 - EndOfFile, bad CRC, ...
                 self.warnings.append(f"{file}: truncated or damaged after {n} messages "
                                      f"({type(e).__name__}); the readable part was used")

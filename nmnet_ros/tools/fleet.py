@@ -64,9 +64,12 @@ def recordings(given: list[str], manifest: Path | None) -> list[Path]:
     matches nothing stops the run, naming it; a path that does not exist becomes that recording's error."""
     specs = [(s, Path.cwd()) for s in given]
     if manifest is not None:
+        try:
+            lines = manifest.read_text().splitlines()
+        except (OSError, UnicodeDecodeError) as e:
+            raise ValueError(f"--manifest {manifest}: cannot read it ({e}); give a text file, one recording per line") from None
         base = manifest.resolve().parent
-        specs += [(line.strip(), base) for line in manifest.read_text().splitlines()
-                  if line.strip() and not line.lstrip().startswith("#")]
+        specs += [(line.strip(), base) for line in lines if line.strip() and not line.lstrip().startswith("#")]
     out: list[Path] = []
     for spec, base in specs:
         path = Path(spec).expanduser()
@@ -171,6 +174,28 @@ def _remove_partial(run_dir: Path) -> None:
             stale.unlink(missing_ok=True)
 
 
+def _reachable(address: str, timeout_s: float = 10.0) -> None:
+    """Stop at once when nothing answers at a cluster's ``address`` (HOST:PORT or ray://HOST:PORT): Ray itself keeps
+    trying to connect for many minutes without a word."""
+    import socket
+
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except (OSError, ValueError) as e:
+        raise ValueError(f"--ray-address {address}: no Ray cluster answers there ({e}); start one (`ray start --head`) "
+                         "or give its head's HOST:PORT, or leave --ray-address out to run on this machine") from None
+
+
+def several(args: argparse.Namespace) -> bool:
+    """Whether ``args`` names several recordings (or a glob, or a manifest): a run over many; refuses none at all."""
+    if args.manifest is not None or len(args.recordings) > 1 or any(map(glob.has_magic, args.recordings)):
+        return True
+    if not args.recordings:
+        raise ValueError("name a recording (a bag file or folder, a sequence folder), or give --manifest FILE")
+    return False
+
+
 def _init_ray(address: str | None) -> None:
     """Join the cluster at ``address`` (or RAY_ADDRESS); without either start a local runtime for this machine."""
     import logging
@@ -178,6 +203,8 @@ def _init_ray(address: str | None) -> None:
     import ray
 
     address = address or os.environ.get("RAY_ADDRESS") or None
+    if address and address != "auto":
+        _reachable(address)
     # "local": a runtime of its own, even beside a cluster started on this machine; summaries only: a small store
     local = {} if address else {"object_store_memory": 100 * 1024**2}
     ray.init(address=address or "local", include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False,
@@ -295,7 +322,7 @@ def report_table(job: Job, report: dict) -> str:
     head = " | ".join(c.header for c in job.columns)
     lines = [f"| recording | status | {head} | note |", "|---" * (len(job.columns) + 3) + "|"]
     for r in report["recordings"]:
-        note = (r.get("error") or "; ".join(dict.fromkeys(r.get("recording_warnings", [])))
+        note = (r.get("error") or "; ".join(r.get("recording_warnings", []))
                 or ("complete before this run" if r.get("skipped") else ""))
         cells = " | ".join(_cell(r.get(c.key), c.fmt) for c in job.columns)
         lines.append(f"| {r['name']} | {r['status']} | {cells} | {note.replace('|', '/').replace(chr(10), ' ')} |")
