@@ -118,6 +118,7 @@ def test_a_cluster_replays_every_recording_as_a_serial_replay_does_and_reports_t
     assert [row["name"] for row in report["recordings"]] == [b.name for b in bags]  # the order given
     assert all(row["status"] == "ok" for row in rows.values())
     assert any("truncated" in w for w in rows["truncated"]["recording_warnings"])  # said, and in the table
+    assert len(rows["truncated"]["recording_warnings"]) == 1  # once, though the bag is read twice (truth, frames)
     assert "truncated" in (run / "report.md").read_text().split("| truncated |")[1].splitlines()[0]
     assert rows["drive0"]["frames"] == 40 and rows["truncated"]["frames"] < 40
     assert report["totals"]["processed"] == sum(s["processed"] for s in serial.values())
@@ -263,3 +264,27 @@ def test_label_takes_many_recordings_too_and_names_the_one_it_refuses(tmp_path):
     assert len(Sequence.load(run / "kitti-07:0-14").paths) == 15 and (run / "kitti-07:0-14" / "label.log").is_file()
     assert rows["euroc-v101-cam0"]["status"] == "failed" and "barely moves" in rows["euroc-v101-cam0"]["error"]
     assert not (run / "euroc-v101-cam0").exists() and not [p for p in run.iterdir() if p.name.startswith(".")]
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["replay", "--out", "run"], "name a recording"),
+    (["label", "run"], "name a recording"),
+    (["replay", "--manifest", "missing.txt", "--out", "run"], "--manifest missing.txt: cannot read it"),
+    (["label", str(SAMPLE), str(SAMPLE / "metadata.yaml"), "run", "--truth", str(SAMPLE)], "--truth: not with several"),
+    (["label", str(SAMPLE), str(SAMPLE / "metadata.yaml"), "run", "--json", "l.json"], "--json: not with several"),
+])
+def test_what_a_run_over_recordings_cannot_start_from_is_refused_by_name(tmp_path, monkeypatch, argv, message):
+    monkeypatch.chdir(tmp_path)
+    r = _nmnet(*argv)
+    assert r.returncode == 2 and message in r.stderr, r.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_cluster_address_nobody_answers_at_stops_at_once_naming_it(tmp_path):
+    """Ray itself kept trying to connect to such an address for many minutes, saying nothing."""
+    empty = tmp_path / "other"
+    empty.mkdir()
+    r = _nmnet("replay", str(SAMPLE), str(empty), "--out", str(tmp_path / "run"), "--ray-address", "127.0.0.1:1",
+               timeout=300)  # a hang fails here
+    assert r.returncode == 2 and "--ray-address 127.0.0.1:1: no Ray cluster answers there" in r.stderr, r.stderr
+    assert not (tmp_path / "run" / "report.json").exists()

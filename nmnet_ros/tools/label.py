@@ -196,13 +196,9 @@ FLEET = fleet.Job("label", _label_into, "reconstruction.json", (
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet label``: one recording here, several (a glob, ``--manifest``) on Ray."""
-    import glob
-
-    if args.manifest is not None or len(args.recordings) > 1 or any(map(glob.has_magic, args.recordings)):
+    if fleet.several(args):
         args.out = Path(args.out_dir)
         return fleet.run(FLEET, args)
-    if not args.recordings:
-        raise ValueError("name a recording to label (a bag, a sequence folder or a folder of images), or --manifest FILE")
     return label_recording(args)
 
 
@@ -231,7 +227,7 @@ def label_recording(args: argparse.Namespace) -> int:
     try:
         (building / "images").mkdir()
         stamps, names, parallax = [], [], []
-        with tqdm(desc="label: keyframes", unit="keyframe", total=args.max_frames, file=sys.stderr, disable=None) as bar:
+        with tqdm(desc="label: keyframes", unit="keyframe", file=sys.stderr, disable=None) as bar:  # a count
             for stamp, image in pick_keyframes(frames, args.interval, args.min_flow, args.max_frames, camera, parallax):
                 name = f"{len(names):06d}.png"
                 if not cv2.imwrite(str(building / "images" / name), image):

@@ -232,15 +232,11 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay``: one recording here, several (a glob, ``--manifest``) on Ray."""
-    import glob
-
     from .options import file_path
 
-    if args.manifest is not None or len(args.recordings) > 1 or any(map(glob.has_magic, args.recordings)):
+    if fleet.several(args):
         args.out = Path(args.out)
         return fleet.run(FLEET, args)
-    if not args.recordings:
-        raise ValueError("name a recording to replay (a bag file or folder), or --manifest FILE")
     try:
         args.bag, args.out = Path(args.recordings[0]), file_path(str(args.out))
     except argparse.ArgumentTypeError as e:
