@@ -248,46 +248,90 @@ def run(job: Job, args: argparse.Namespace) -> int:
 def _run_tasks(job: Job, args: argparse.Namespace, run_dir: Path, todo: list[tuple[str, Path]],
                rows: dict[str, dict]) -> bool:
     """Run the recordings of ``todo`` as Ray tasks, filling ``rows`` as they finish; True when interrupted."""
+    paths = dict(todo)
+
+    def done(name: str, row: dict | Failed) -> str | None:
+        if isinstance(row, Failed):  # the worker died more often than it is retried, or Ray failed
+            row = {"name": name, "recording": str(paths[name]), "status": "failed", "error": row.error}
+        rows[name] = row
+        return None if row["status"] == "ok" else f"{name} ({paths[name]}): {row['error']}"
+
+    try:
+        _, interrupted = map_tasks(run_one, {name: (path, run_dir, name) for name, path in todo}, common=(job, args),
+                                   address=args.ray_address, what=f"{job.command}: recordings", unit="rec",
+                                   quiet=getattr(args, "no_progress", False), done=done)
+    finally:
+        _remove_partial(run_dir)  # the cancelled or killed tasks' half-made folders
+    if interrupted:
+        print(f"the finished recordings are complete in {run_dir}", file=sys.stderr)
+    return interrupted
+
+
+@dataclass(frozen=True)
+class Failed:
+    """A task's error (an exception it raised, or its worker's death after the retries), as one line."""
+
+    error: str
+
+
+def _guarded(fn: Callable, *args: object) -> object:
+    """``fn(*args)``, or its ValueError/OSError as :class:`Failed` (a bad input is that task's result, said plainly)."""
+    try:
+        return fn(*args)
+    except (ValueError, OSError) as e:
+        return Failed(f"{type(e).__name__}: {e}")
+
+
+def map_tasks(fn: Callable, calls: dict[str, tuple], *, common: tuple = (), address: str | None = None,
+              what: str = "tasks", unit: str = "task", quiet: bool = False,
+              done: Callable[[str, object], str | None] | None = None) -> tuple[dict[str, object], bool]:
+    """``fn(*common, *calls[name])`` for every name, one Ray task each (one CPU; retried when its worker dies).
+
+    ``common`` goes through Ray's object store once, not once per task: keep it small (options, paths). One progress
+    bar over the tasks; ``done(name, result)`` sees each result as it arrives and returns a line to print above the
+    bar (a failure, named) or None. A ValueError/OSError in a task, or a worker that died more often than it is
+    retried, gives :class:`Failed`. Ctrl-C or SIGTERM cancels the tasks not finished. Returns the finished results by
+    name and whether the run was interrupted. Ray starts here (see :func:`_init_ray`) and is shut down on return.
+    """
     import signal
 
     import ray
     from tqdm import tqdm
 
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    _init_ray(args.ray_address)
+    _init_ray(address)
     for signum, handler in handlers.items():  # Ray's own would abort the process: Ctrl-C and SIGTERM stop as elsewhere
         if handler is not None:
             signal.signal(signum, handler)
-    task = ray.remote(num_cpus=1, max_retries=RETRIES)(run_one)
-    shared = ray.put(args)
-    pending = {task.remote(job, shared, path, run_dir, name): (name, path) for name, path in todo}
-    quiet = getattr(args, "no_progress", False)
-    bar = tqdm(total=len(todo), desc=f"{job.command}: recordings", unit="rec", file=sys.stderr, disable=True if quiet else None)
-    interrupted = False
+    results: dict[str, object] = {}
+    bar = tqdm(total=len(calls), desc=what, unit=unit, file=sys.stderr, disable=True if quiet else None)
+    interrupted, pending = False, {}
     try:
+        task = ray.remote(num_cpus=1, max_retries=RETRIES)(_guarded).options(name=fn.__name__)  # ray::NAME processes
+        shared = [ray.put(a) for a in common]
+        pending = {task.remote(fn, *shared, *a): name for name, a in calls.items()}
         while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            name, path = pending.pop(done[0])
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            name = pending.pop(ready[0])
             try:
-                row = ray.get(done[0])
+                result = ray.get(ready[0])
             except Exception as e:  # noqa: BLE001 - the worker died more often than it is retried, or Ray failed
-                row = {"name": name, "recording": str(path), "status": "failed",
-                       "error": f"{type(e).__name__}: {str(e).strip().splitlines()[0] if str(e).strip() else ''}"}
-            rows[name] = row
-            if row["status"] != "ok":
-                bar.write(f"failed: {name} ({path}): {row['error']}", file=sys.stderr)
+                first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+                result = Failed(f"{type(e).__name__}: {first}")
+            results[name] = result
+            line = done(name, result) if done else (f"{name}: {result.error}" if isinstance(result, Failed) else None)
+            if line:
+                bar.write(f"failed: {line}", file=sys.stderr)
             bar.update(1)
     except KeyboardInterrupt:
         interrupted = True
-        bar.write(f"interrupted: {len(pending)} recordings not finished; the finished ones are complete in {run_dir}",
-                  file=sys.stderr)
+        bar.write(f"interrupted: {len(pending)} of {len(calls)} not finished", file=sys.stderr)
         for ref in pending:
             ray.cancel(ref, force=True)
     finally:
         bar.close()
         ray.shutdown()
-        _remove_partial(run_dir)  # the cancelled or killed tasks' half-made folders
-    return interrupted
+    return results, interrupted
 
 
 def totals(job: Job, rows: list[dict]) -> dict:
