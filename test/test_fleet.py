@@ -288,3 +288,98 @@ def test_a_cluster_address_nobody_answers_at_stops_at_once_naming_it(tmp_path):
                timeout=300)  # a hang fails here
     assert r.returncode == 2 and "--ray-address 127.0.0.1:1: no Ray cluster answers there" in r.stderr, r.stderr
     assert not (tmp_path / "run" / "report.json").exists()
+
+
+@pytest.mark.slow
+def test_eval_scores_several_folders_in_parallel_as_it_scores_them_in_one_process(tmp_path):
+    """``nmnet eval A B --manifest M``: one Ray task per folder (local runtime), the same numbers as the pairs of all
+    the folders scored in one process; a folder that cannot be read among them is named, the others are scored."""
+    import numpy as np
+
+    from nmnet_ros.core.detectors import make_detector
+    from nmnet_ros.io.cache import FeatureCache
+    from nmnet_ros.io.pairs import load_pairs
+    from nmnet_ros.tools.evaluate import evaluate
+
+    from .conftest import data_dir
+
+    kitti = data_dir("kitti-07")
+    specs = [f"{kitti}:120-125", f"{kitti}:130-135"]
+    manifest = tmp_path / "folders.txt"
+    manifest.write_text(f"# the second folder, and one that is not there\n{specs[1]}\nmissing-folder\n")
+    methods = "nmnet,ratio+magsac,oracle"
+    out = tmp_path / "eval.json"
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    r = _nmnet("eval", specs[0], "--manifest", str(manifest), "--gaps", "1,2", "--methods", methods, "--seeds", "2",
+               "--cache", str(tmp_path / "cache"), "--json", str(out), env=env)
+    assert r.returncode == 1, r.stdout + r.stderr  # one folder failed
+    assert "failed: missing-folder" in r.stderr and "not a directory" in r.stderr
+    assert "| AUC@5 per sequence (pairs) | kitti-07:120-125 (9) | kitti-07:130-135 (9) |" in r.stdout
+    got = json.loads(out.read_text())
+    assert list(got["failed"]) == ["missing-folder"]
+
+    cache = FeatureCache(make_detector("hessian-affine-fast", {"max_keypoints": 2000}), tmp_path / "cache")
+    pairs = [p for spec in specs for p in load_pairs([spec], (1, 2), cache)]
+    alone = evaluate(pairs, methods.split(","), seeds=2)["metrics"]
+    for name, metrics in alone.items():
+        assert {k: v for k, v in got["methods"][name].items() if k != "sec_per_pair"} == pytest.approx(
+            {k: v for k, v in metrics.items() if k != "sec_per_pair"}, abs=1e-9), name
+    assert sum(b["pairs"] for b in got["bins"]["gap"].values()) == len(pairs) == 18
+    assert np.isfinite(got["auc5_vs_reference"]["oracle"]["auc5"])
+
+
+@pytest.mark.slow
+def test_train_computes_the_features_of_several_folders_in_parallel_before_it_loads_them(tmp_path, monkeypatch):
+    """``nmnet train``'s preparation: the features the folders' pairs need, one Ray task per folder, into the cache
+    the loaders read; the same features as computed in one process."""
+    import numpy as np
+
+    from nmnet_ros.core.detectors import make_detector
+    from nmnet_ros.io.cache import FeatureCache
+    from nmnet_ros.io.pairs import pair_frames
+    from nmnet_ros.tools.train import DEFAULT_CONFIG, PARALLEL_FRAMES, prepare_features
+
+    from .conftest import data_dir
+
+    kitti = data_dir("kitti-07")
+    specs = [f"{kitti}:0-19", f"{kitti}:20-39"]  # 40 frames: Ray's start pays
+    c = {**DEFAULT_CONFIG, "gaps": (1, 2)}
+    cache = FeatureCache(make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]}), tmp_path / "cache")
+    said: list[str] = []
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)  # a local runtime
+    prepare_features(specs, cache, c, said.append)
+    assert "features: 40 frames of 2 folders" in said[0] and said[1].startswith("features: 40 computed"), said
+    assert PARALLEL_FRAMES <= 40
+    for spec in specs:
+        seq, frames = pair_frames(spec, c["gaps"])
+        assert cache.fill(seq, frames) == 0  # every one there
+    seq, _ = pair_frames(specs[1], c["gaps"])
+    stored, computed = cache(seq, 25), cache.detector(seq.image(25))
+    assert np.array_equal(stored.keypoints, computed.keypoints) and np.array_equal(stored.descriptors, computed.descriptors)
+    said.clear()
+    prepare_features(specs, cache, c, said.append)
+    assert not said  # nothing left to compute: no Ray
+
+
+@pytest.mark.slow
+def test_eval_interrupted_writes_nothing_and_eval_needs_a_folder(cluster, tmp_path):
+    """Ctrl-C during a parallel eval: exit 130, no half-merged JSON; no folder at all is refused."""
+    from .conftest import data_dir
+
+    address, env = cluster  # one worker with one CPU: one folder at a time
+    kitti = data_dir("kitti-07")
+    out = tmp_path / "eval.json"
+    proc = subprocess.Popen([str(BIN / "nmnet"), "eval", *(f"{kitti}:{a}-{a + 5}" for a in (120, 130, 140, 150)),
+                             "--gaps", "1", "--methods", "ratio+magsac", "--cache", str(tmp_path / "cache"),
+                             "--json", str(out), "--ray-address", address],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # as at a terminal
+    for line in proc.stderr:  # a folder's notes come when it is scored
+        if "eval: kitti-07:" in line:
+            break
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and not out.exists()
+    r = _nmnet("eval", "--methods", "ratio")
+    assert r.returncode == 2 and "name a sequence folder, or give --manifest FILE" in r.stderr

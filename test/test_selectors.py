@@ -678,7 +678,7 @@ def test_eval_shows_hard_pairs_by_inlier_ratio_and_gap_and_scores_pairs_without_
     import sys
 
     from nmnet_ros.io.pairs import select_pairs
-    from nmnet_ros.tools.evaluate import evaluate, gap_bin, pair_bins, ratio_bin
+    from nmnet_ros.tools.evaluate import evaluate, gap_bin, inlier_ratio, pair_bins, ratio_bin
 
     assert [ratio_bin(x) for x in (5, 10, 19.9, 20, 35, 80)] == ["< 10 %", "10-20 %", "10-20 %", "20-35 %", ">= 35 %",
                                                                  ">= 35 %"]
@@ -687,7 +687,7 @@ def test_eval_shows_hard_pairs_by_inlier_ratio_and_gap_and_scores_pairs_without_
     res = evaluate([blind], ["ratio+magsac"], {}, {})
     assert res["metrics"]["ratio+magsac"]["f1"] is None and res["errors"]["ratio+magsac"].shape == (1, 1)
     assert res["metrics"]["ratio+magsac"]["auc5"] > 0  # its pose, scored against the ground truth
-    assert pair_bins(pairs)["gap"] == ["1-2", "3-5", "3-5"] * 4
+    assert pair_bins([inlier_ratio(p) for p in pairs], [abs(p.j - p.i) for p in pairs])["gap"] == ["1-2", "3-5", "3-5"] * 4
     herz = Sequence.load(data_dir("strecha-herz-jesus-p25"))
     assert len(select_pairs(herz, tuple(range(1, 11)), max_view_angle=90)) > len(select_pairs(herz, tuple(range(1, 11))))
     out = tmp_path / "e.json"

@@ -42,6 +42,14 @@ class FeatureCache:
             self._memo[p] = self._load_or_compute(seq, i, p)
         return self._memo[p]
 
+    def fill(self, seq: Sequence, frames: list[int]) -> int:
+        """Compute and store the features of ``frames`` that the cache lacks, without keeping them in memory (a
+        worker preparing features for a later run); returns how many were computed."""
+        missing = [i for i in frames if not self.path(seq, i).is_file()]
+        for i in missing:
+            self._load_or_compute(seq, i, self.path(seq, i))
+        return len(missing)
+
     def _load_or_compute(self, seq: Sequence, i: int, p: Path) -> Features:
         if p.is_file():
             try:

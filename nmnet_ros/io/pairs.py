@@ -81,6 +81,13 @@ def select_pairs(seq: Sequence, gaps: tuple[int, ...], frames: range | None = No
     return out
 
 
+def pair_frames(spec: str, gaps: tuple[int, ...], max_view_angle: float = MAX_VIEW_ANGLE_DEG) -> tuple[Sequence, list[int]]:
+    """The frames that 'PATH[:a-b]''s pairs (:func:`select_pairs`, every start frame) use, and its sequence."""
+    path, frames = parse_seq_spec(spec)
+    seq = Sequence.load(path)
+    return seq, sorted({k for pair in select_pairs(seq, gaps, frames, max_view_angle) for k in pair})
+
+
 def no_pairs_reason(seq: Sequence, spec: str, gaps: tuple[int, ...], frames: range | None = None,
                     max_view_angle: float = MAX_VIEW_ANGLE_DEG) -> str:
     """Why ``select_pairs`` gave ``spec`` no pairs: its frames make none (at these gaps), or none has what labels need."""
@@ -103,13 +110,14 @@ def make_pair(seq: Sequence, i: int, j: int, cache: FeatureCache, match_config: 
     return PairData(seq, i, j, f0, f1, m, labels, R, t)
 
 
-def _to_stderr(line: str) -> None:
+def to_stderr(line: str) -> None:
+    """A note line on stderr (the loaders' default log)."""
     print(line, file=sys.stderr)
 
 
 def load_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, *, stride: int = 1,
                max_pairs: int | None = None, min_inliers: int = 0, label_threshold: float = LABEL_THRESHOLD,
-               skip_empty: bool = False, log: Callable[[str], None] = _to_stderr, tool: str = "eval",
+               skip_empty: bool = False, log: Callable[[str], None] = to_stderr, tool: str = "eval",
                max_view_angle: float = MAX_VIEW_ANGLE_DEG) -> list[PairData]:
     """Labelled pairs of every 'PATH[:a-b]', the one loader of eval, train and the studies.
 
@@ -158,6 +166,12 @@ def parse_seq_spec(spec: str) -> tuple[str, range | None]:
     if (m := re.fullmatch(r"(\d+)-(\d+)", rng)) is None:
         raise ValueError(f"{spec}: a frame range is PATH:a-b, frames a to b (e.g. {path}:0-119), got {rng!r}")
     return path, range(int(m[1]), int(m[2]) + 1)
+
+
+def absolute_spec(spec: str) -> str:
+    """'PATH[:a-b]' with PATH absolute: for a worker that may run in another folder."""
+    path, frames = parse_seq_spec(spec)
+    return str(Path(path).resolve()) + (f":{frames.start}-{frames.stop - 1}" if frames is not None else "")
 
 
 def spec_label(spec: str) -> str:

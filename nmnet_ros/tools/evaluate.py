@@ -14,6 +14,8 @@ import argparse
 import bisect
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,23 +26,29 @@ from ..core.metrics import prf
 from ..core.model import NEIGHBORS, load_model
 from ..core.model_fast import precision_note
 from ..core.selectors import METHODS, NETWORK, ROBUST, build
-from ..io.cache import FeatureCache
+from ..io.cache import FeatureCache, default_cache_dir
 from ..io.outputs import output_file, save_figure, write_json
-from ..io.pairs import PairData, load_pairs, parse_seq_spec, shared_frames, spec_label, to_correspondences
+from ..io.pairs import PairData, absolute_spec, load_pairs, parse_seq_spec, shared_frames, spec_label, to_correspondences, to_stderr
 from ..io.progress import progress
+from . import fleet
 
 
-def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
-             config: dict | None = None, seeds: int = 1) -> dict:
-    """Run every method on every pair; returns {"metrics": {method: metrics}, "errors": {method: errors}}.
+@dataclass
+class Runs:
+    """One method's runs on a list of pairs: what a folder's task returns (no frame data), merged by concatenation."""
 
-    Methods with a robust estimator run once per seed 0..seeds-1, the others (deterministic) once;
-    errors (max of rotation and translation, degrees) are (pairs, seeds) for every method and each
-    metric is the mean over all runs except the time, which is that of one run (seed 0).
-    """
+    prfs: list[dict]  # P/R/F of every run on a pair with a labelled inlier (undefined on the others)
+    errors: np.ndarray  # (pairs, seeds, 2): every run's rotation and translation error, degrees
+    secs: list[float]  # each pair's time of one full run (selection + pose)
+
+
+def score(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
+          config: dict | None = None, seeds: int = 1, log: Callable[[str], None] = to_stderr) -> dict[str, Runs]:
+    """Run every method on every pair. Methods with a robust estimator run once per seed 0..seeds-1, the others
+    (deterministic) once, their one run standing for every seed."""
     if seeds < 1:
         raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {seeds}")
-    out, errors = {}, {}
+    out = {}
     for name in methods:
         select = build(name, config, weights)
         runs = seeds if name in ROBUST else 1
@@ -53,18 +61,39 @@ def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] 
             sels += [select(c, seed=s) for s in range(1, runs)]
             if p.labels.any():  # P/R/F are undefined without a labelled inlier; the pose is scored all the same
                 prfs += [prf(sel.mask, p.labels) for sel in sels]
-            errs.append([pose_error_deg(sel.pose, p.R, p.t) for sel in sels] * (seeds // runs))  # one run stands for all
-        e = np.array(errs, np.float64)  # (pairs, seeds, rotation/translation)
+            errs.append([pose_error_deg(sel.pose, p.R, p.t) for sel in sels] * (seeds // runs))
+        out[name] = Runs(prfs, np.array(errs, np.float64).reshape(len(pairs), seeds, 2), secs)
+        log(f"eval: {name}: {len(pairs)} pairs x {runs} run(s) in {time.perf_counter() - t_method:.0f} s")
+    return out
+
+
+def summarize(runs: dict[str, Runs]) -> dict:
+    """{"metrics": {method: metrics}, "errors": {method: (pairs, seeds) errors}}: each metric is the mean over all
+    runs, except the time, that of one run; a pair's error is the larger of its rotation and translation errors."""
+    out, errors = {}, {}
+    for name, r in runs.items():
+        e = r.errors
         aucs = pose_auc(e.max(2).ravel())
         out[name] = {
-            **{k: float(np.mean([x[k] for x in prfs])) if prfs else None for k in ("precision", "recall", "f1")},
+            **{k: float(np.mean([x[k] for x in r.prfs])) if r.prfs else None for k in ("precision", "recall", "f1")},
             "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2],
             "median_rot_deg": float(np.median(e[..., 0])), "median_trans_deg": float(np.median(e[..., 1])),
-            "pairs": len(pairs), "sec_per_pair": float(np.mean(secs)),
+            "pairs": len(e), "sec_per_pair": float(np.mean(r.secs)),
         }
         errors[name] = e.max(2)
-        print(f"eval: {name}: {len(pairs)} pairs x {runs} run(s) in {time.perf_counter() - t_method:.0f} s", file=sys.stderr)
     return {"metrics": out, "errors": errors}
+
+
+def merge(parts: list[dict[str, Runs]]) -> dict[str, Runs]:
+    """Several folders' runs as one list of pairs, in the order given (the bootstrap draws by position)."""
+    return {name: Runs([x for p in parts for x in p[name].prfs], np.concatenate([p[name].errors for p in parts]),
+                       [x for p in parts for x in p[name].secs]) for name in parts[0]}
+
+
+def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
+             config: dict | None = None, seeds: int = 1) -> dict:
+    """Every method on every pair (:func:`score`), summarized (:func:`summarize`)."""
+    return summarize(score(pairs, methods, weights, config, seeds))
 
 
 def paired_auc_difference(errors: np.ndarray, reference: np.ndarray, threshold: float = 5.0,
@@ -123,10 +152,14 @@ def gap_bin(gap: int) -> str:
     return GAP_BINS[bisect.bisect_right(GAP_EDGES, gap)]
 
 
-def pair_bins(pairs: list[PairData]) -> dict[str, list[str]]:
-    """Each pair's bin by putative inlier ratio and by frame gap (pairs.txt pairs: by index distance)."""
-    return {"inlier_ratio": [ratio_bin(100 * float(p.labels.mean()) if len(p.labels) else 0.0) for p in pairs],
-            "gap": [gap_bin(abs(p.j - p.i)) for p in pairs]}
+def inlier_ratio(p: PairData) -> float:
+    """A pair's putative inlier ratio, percent (0 without matches)."""
+    return 100 * float(p.labels.mean()) if len(p.labels) else 0.0
+
+
+def pair_bins(ratios: list[float], gaps: list[int]) -> dict[str, list[str]]:
+    """Each pair's bin by putative inlier ratio (%) and by frame gap (pairs.txt pairs: by index distance)."""
+    return {"inlier_ratio": [ratio_bin(r) for r in ratios], "gap": [gap_bin(g) for g in gaps]}
 
 
 def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None) -> dict:
@@ -225,8 +258,53 @@ def plot_path(args: argparse.Namespace) -> Path:
     return args.json.with_suffix(".png")
 
 
+@dataclass
+class Folder:
+    """One folder's pairs scored by every method: a Ray task's result, numbers only."""
+
+    ratios: list[float]  # each pair's putative inlier ratio, %
+    gaps: list[int]  # each pair's frame gap
+    runs: dict[str, Runs]
+    notes: list[str] = field(default_factory=list)  # its loader's warnings and lines, when not printed as they came
+
+
+def score_folder(args: argparse.Namespace, methods: list[str], weights: dict[str, str], config: dict, spec: str,
+                 skip_empty: bool, log: Callable[[str], None] | None = None) -> Folder:
+    """Load one 'PATH[:a-b]''s pairs and score them; the notes go to ``log``, else into the result (a Ray task's)."""
+    notes: list[str] = []
+    cache = FeatureCache(make_detector(args.detector, {"max_keypoints": args.max_keypoints}), args.cache)
+    pairs = load_pairs([spec], args.gaps, cache, stride=args.stride, max_pairs=args.max_pairs, skip_empty=skip_empty,
+                       max_view_angle=args.max_view_angle, log=log or notes.append)
+    runs = score(pairs, methods, weights, config, args.seeds, log=log or notes.append)
+    return Folder([inlier_ratio(p) for p in pairs], [abs(p.j - p.i) for p in pairs], runs, notes)
+
+
+def score_folders(args: argparse.Namespace, specs: list[str], labels: list[str], methods: list[str],
+                  weights: dict[str, str], config: dict) -> tuple[dict[str, Folder], dict[str, str], bool]:
+    """Every folder scored: one alone here, several as Ray tasks, one per folder (see :mod:`.fleet`).
+    Returns the folders scored by label, the failed ones' errors, and whether the run was interrupted."""
+    if len(specs) == 1:
+        return {labels[0]: score_folder(args, methods, weights, config, specs[0], False, log=to_stderr)}, {}, False
+    options = argparse.Namespace(**{**vars(args), "cache": (args.cache or default_cache_dir()).resolve()})
+    weights = {k: str(Path(v).resolve()) for k, v in weights.items()}
+
+    def done(label: str, result: Folder | fleet.Failed) -> str | None:
+        if isinstance(result, fleet.Failed):
+            return f"{label}: {result.error}"
+        for line in result.notes:
+            print(line, file=sys.stderr)
+        return None
+
+    calls = {label: (absolute_spec(spec), True) for label, spec in zip(labels, specs, strict=True)}
+    results, interrupted = fleet.map_tasks(score_folder, calls, common=(options, methods, weights, config),
+                                           address=args.ray_address, what="eval: folders", unit="folder", done=done)
+    scored = {k: v for k, v in results.items() if isinstance(v, Folder)}
+    return scored, {k: v.error for k, v in results.items() if isinstance(v, fleet.Failed)}, interrupted
+
+
 def main(args: argparse.Namespace) -> int:
-    """Entry point of ``nmnet eval``."""
+    """Entry point of ``nmnet eval``: 0, 1 when a folder among several failed (the others are scored), 130 when
+    interrupted (nothing written)."""
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:  # none: an empty table and an empty plot, exit 0
@@ -236,7 +314,9 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--max-iters must be >= 1, got {args.max_iters}")
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1 (runs of each robust estimator per pair), got {args.seeds}")
-    inputs = [parse_seq_spec(s)[0] for s in args.seqs] + [args.weights, args.weights_sp]
+    several = fleet.several(args.seqs, args.manifest, "a sequence folder")
+    specs = [str(p) for p in fleet.recordings(args.seqs, args.manifest)] if several else args.seqs
+    inputs = [parse_seq_spec(s)[0] for s in specs] + [args.weights, args.weights_sp]
     output_file(args.json, "--json", "eval.json", inputs)
     plot = plot_path(args)
     output_file(plot, "--plot" if args.plot else "--plots" if args.plots else "--json", "eval_curves.png", inputs)
@@ -248,43 +328,46 @@ def main(args: argparse.Namespace) -> int:
             flag, other = ("--weights", "--weights-sp") if variant == "nmnet" else ("--weights-sp", "--weights")
             raise ValueError(f"{flag} {path}: trained with {kind} neighbours, the other variant's network; "
                              f"give it as {other}")
-    cache = FeatureCache(make_detector(args.detector, {"max_keypoints": args.max_keypoints}), args.cache)
-    for i, spec in enumerate(args.seqs):  # a folder given twice, or ranges that meet: its pairs would weigh double
-        if shared := shared_frames([spec], args.seqs[i + 1:], at_least=2):  # one frame shared: no pair in both
+    for i, spec in enumerate(specs):  # ranges of one folder that meet: their pairs would weigh double
+        if shared := shared_frames([spec], specs[i + 1:], at_least=2):  # one frame shared: no pair in both
             print(f"warning: {spec} and a later folder argument share frames ({'; '.join(shared)}): the pairs within "
                   "them are evaluated twice and count twice in the means", file=sys.stderr)
-    labels = [spec_label(spec) for spec in args.seqs]
+    labels = [spec_label(spec) for spec in specs]
     if len(set(labels)) < len(labels):  # two folders of the same name (or one given twice): name them in full
-        labels = list(args.seqs)
-    pairs, groups = [], []
-    for spec, label in zip(args.seqs, labels, strict=True):  # among several, a folder without pairs is a warning
-        chosen = load_pairs([spec], args.gaps, cache, stride=args.stride, max_pairs=args.max_pairs,
-                            skip_empty=len(args.seqs) > 1, max_view_angle=args.max_view_angle)
-        pairs += chosen
-        groups += [label] * len(chosen)
-    if not pairs:
-        raise ValueError("no pairs to evaluate in any of the folders (the warnings above say why)")
-    res = evaluate(pairs, methods, weights, {**{name: getattr(args, name) for name in SELECTOR_SETTINGS},
-                                             "max_iters": args.max_iters},
-                   args.seeds)
+        labels = list(specs)
+    config = {**{name: getattr(args, name) for name in SELECTOR_SETTINGS}, "max_iters": args.max_iters}
+    scored, failed, interrupted = score_folders(args, specs, labels, methods, weights, config)
+    if interrupted:
+        print("interrupted: nothing written", file=sys.stderr)
+        return 130
+    folders = {label: scored[label] for label in labels if label in scored and scored[label].ratios}  # the order given
+    if not folders:
+        raise ValueError("no pairs to evaluate in any of the folders (the lines above say why)")
+    res = summarize(merge([f.runs for f in folders.values()]))
+    ratios = [r for f in folders.values() for r in f.ratios]
+    groups = [label for label, f in folders.items() for _ in f.ratios]
     runs = f"; MAGSAC++/RANSAC methods: mean of {args.seeds} seeds" if args.seeds > 1 else ""
     net = f"; NM-Net in {precision_note(args.nmnet_precision)}" if set(methods) & set(NETWORK) else ""
-    print(f"{len(pairs)} pairs, mean inlier ratio {100 * np.mean([p.labels.mean() for p in pairs]):.1f}%{runs}{net}\n")
+    each = "; each folder in a Ray task on one core (ms/pair: one core's)" if several else ""
+    print(f"{len(ratios)} pairs, mean inlier ratio {np.mean(ratios):.1f}%{runs}{net}{each}\n")
     print(markdown_table(res["metrics"]))
     if args.reference in res["errors"] and len(res["errors"]) > 1:
         print("\n" + "\n".join(difference_lines(res["errors"], args.reference)))
     elif len(res["errors"]) > 1:  # the differences were left out without a word
         print(f"\n(no AUC@5 differences: --reference {args.reference} is not among --methods; add it, or choose one "
               "that is)")
-    if len(set(groups)) > 1:
+    if len(folders) > 1:
         print("\n" + per_sequence_table(res["errors"], groups, args.reference))
-    bins = {kind: binned(res["errors"], groups_of, args.reference) for kind, groups_of in pair_bins(pairs).items()}
+    gaps = [g for f in folders.values() for g in f.gaps]
+    bins = {kind: binned(res["errors"], groups_of, args.reference) for kind, groups_of in pair_bins(ratios, gaps).items()}
     for kind, title in (("inlier_ratio", "AUC@5 by putative inlier ratio (pairs)"), ("gap", "AUC@5 by frame gap (pairs)")):
         ordered = dict(sorted(bins[kind].items(), key=lambda kv: BIN_ORDER[kv[0]]))  # the hard pairs first
         print("\n" + group_table(ordered, title))
+    if failed:
+        print(f"\nnot evaluated, failed: {'; '.join(f'{k}: {v}' for k, v in failed.items())}")
     if args.json:  # before the plot: the numbers are what a script reads
         write_json(args.json, {"methods": res["metrics"], **reference_differences(res["errors"], args.reference),
-                               "bins": bins})
+                               "bins": bins, **({"failed": failed} if failed else {})})
     plot_curves(res["errors"], plot)
     print(f"\nplot: {plot}")
-    return 0
+    return 1 if failed else 0

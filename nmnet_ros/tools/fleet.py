@@ -187,12 +187,14 @@ def _reachable(address: str, timeout_s: float = 10.0) -> None:
                          "or give its head's HOST:PORT, or leave --ray-address out to run on this machine") from None
 
 
-def several(args: argparse.Namespace) -> bool:
-    """Whether ``args`` names several recordings (or a glob, or a manifest): a run over many; refuses none at all."""
-    if args.manifest is not None or len(args.recordings) > 1 or any(map(glob.has_magic, args.recordings)):
+def several(given: list[str], manifest: Path | None,
+            what: str = "a recording (a bag file or folder, a sequence folder)") -> bool:
+    """Whether the inputs ``given`` (and ``manifest``) name several: more than one, a glob, or a manifest. None at all
+    is refused, naming ``what`` to give."""
+    if manifest is not None or len(given) > 1 or any(map(glob.has_magic, given)):
         return True
-    if not args.recordings:
-        raise ValueError("name a recording (a bag file or folder, a sequence folder), or give --manifest FILE")
+    if not given:
+        raise ValueError(f"name {what}, or give --manifest FILE")
     return False
 
 

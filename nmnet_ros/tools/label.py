@@ -196,7 +196,7 @@ FLEET = fleet.Job("label", _label_into, "reconstruction.json", (
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet label``: one recording here, several (a glob, ``--manifest``) on Ray."""
-    if fleet.several(args):
+    if fleet.several(args.recordings, args.manifest):
         args.out = Path(args.out_dir)
         return fleet.run(FLEET, args)
     return label_recording(args)

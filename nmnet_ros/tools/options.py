@@ -164,6 +164,14 @@ class HelpFormatter(argparse.HelpFormatter):
         return f"{text} (default: {shown})"
 
 
+def add_fleet_options(p: argparse.ArgumentParser, inputs: str) -> None:
+    """--manifest and --ray-address, alike in every command that runs over many inputs (see tools/fleet.py)."""
+    p.add_argument("--manifest", type=Path, default=None, metavar="FILE",
+                   help="more inputs, one path or glob per line (relative to FILE's folder; # comments)")
+    p.add_argument("--ray-address", default=None, metavar="ADDRESS", help=f"{inputs}: the Ray cluster to run "
+                   "on (default: $RAY_ADDRESS, else a local Ray runtime on this machine's cores)")
+
+
 SEQS = f"sequence folders (optional frame range): {FOLDERS_READ}"
 
 
@@ -174,10 +182,7 @@ def replay(p: argparse.ArgumentParser) -> None:
                    "parallel on Ray, one task per recording")
     p.add_argument("--out", required=True, help="output .mcap with matches and relative poses; with "
                    "several recordings the run's folder: OUT/NAME/ per recording, OUT/report.json, .md, .png")
-    p.add_argument("--manifest", type=Path, default=None, metavar="FILE",
-                   help="more recordings, one path or glob per line (relative to FILE's folder; # comments)")
-    p.add_argument("--ray-address", default=None, metavar="ADDRESS", help="several recordings: the Ray cluster to run "
-                   "on (default: $RAY_ADDRESS, else a local Ray runtime on this machine's cores)")
+    add_fleet_options(p, "several recordings")
     p.add_argument("--json", type=file_path, default=None, help="write the summary as JSON")
     p.add_argument("--plots", type=Path, default=None, help="folder for the PNG plots, named errors.png, trajectory.png, "
                    "matches.png (default: --out's folder, named after it: OUT_errors.png, ...)")
@@ -243,10 +248,7 @@ def label(p: argparse.ArgumentParser) -> None:
                    "quoted glob): labelled in parallel on Ray, one task per recording")
     p.add_argument("out_dir", type=Path, metavar="OUT_DIR", help="the labelled sequence folder to write; with several "
                    "recordings the run's folder: OUT_DIR/NAME/ per recording, OUT_DIR/report.json, .md, .png")
-    p.add_argument("--manifest", type=Path, default=None, metavar="FILE",
-                   help="more recordings, one path or glob per line (relative to FILE's folder; # comments)")
-    p.add_argument("--ray-address", default=None, metavar="ADDRESS", help="several recordings: the Ray cluster to run "
-                   "on (default: $RAY_ADDRESS, else a local Ray runtime on this machine's cores)")
+    add_fleet_options(p, "several recordings")
     p.add_argument("--camera", type=Path, default=None, metavar="YAML",
                    help="calibration (a camera_info YAML, Kalibr, EuRoC or OpenCV file), for a recording without one")
     p.add_argument("--image-topic", default=None, help="a bag's image topic (default: its only camera's)")
@@ -268,7 +270,9 @@ def label(p: argparse.ArgumentParser) -> None:
 
 def evaluate(p: argparse.ArgumentParser) -> None:
     """``nmnet eval``."""
-    p.add_argument("seqs", nargs="+", metavar="SEQ[:a-b]", help=SEQS)
+    p.add_argument("seqs", nargs="*", metavar="SEQ[:a-b]", help=SEQS + "; several (or a quoted glob): scored in "
+                   "parallel on Ray, one task per folder")
+    add_fleet_options(p, "several folders")
     p.add_argument("--methods", default="nmnet,nmnet-sp,ratio,ransac,magsac,ratio+magsac,nmnet+magsac,oracle",
                    help=f"comma-separated, from: {', '.join(METHODS)}")
     p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")

@@ -234,7 +234,7 @@ def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet replay``: one recording here, several (a glob, ``--manifest``) on Ray."""
     from .options import file_path
 
-    if fleet.several(args):
+    if fleet.several(args.recordings, args.manifest):
         args.out = Path(args.out)
         return fleet.run(FLEET, args)
     try:

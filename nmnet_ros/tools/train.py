@@ -36,7 +36,8 @@ from ..core.settings import FRONTEND_DEFAULTS
 from ..io.cache import FeatureCache
 from ..io.datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from ..io.outputs import output_folder, replace_atomically, write_json, written_by
-from ..io.pairs import PairData, load_pairs, parse_seq_spec, shared_frames
+from ..io.pairs import PairData, absolute_spec, load_pairs, pair_frames, parse_seq_spec, shared_frames
+from . import fleet
 from .options import MAX_ROLL_DEG, MIN_THINNED_RATIO, TRAIN_DEFAULTS
 
 DEFAULT_CONFIG: dict = {
@@ -57,6 +58,41 @@ def _labelled_pairs(specs: list[str], cache: FeatureCache, c: dict, log: Callabl
     pairs is a warning (another may have some)."""
     return load_pairs(specs, tuple(c["gaps"]), cache, min_inliers=c["min_inliers"], label_threshold=c["label_threshold"],
                       skip_empty=True, log=lambda line: log(f"  {line}"), tool="train")
+
+
+PARALLEL_FRAMES = 32  # frames to compute before Ray's start (seconds) pays; fewer: the loaders compute them in turn
+
+
+def _fill(gaps: tuple[int, ...], detector: str, max_keypoints: int, root: Path, spec: str) -> int:
+    """A Ray task: the features that ``spec``'s pairs need, into the cache at ``root``; how many were computed."""
+    seq, frames = pair_frames(spec, gaps)
+    return FeatureCache(make_detector(detector, {"max_keypoints": max_keypoints}), root).fill(seq, frames)
+
+
+def prepare_features(specs: list[str], cache: FeatureCache, c: dict, log: Callable[[str], None]) -> None:
+    """Compute the features that the folders' pairs need and ``cache`` lacks, one Ray task per folder (a local
+    runtime, or $RAY_ADDRESS's cluster with the cache on shared storage), when two or more folders lack
+    :data:`PARALLEL_FRAMES` or more in all; the loaders then read them. A folder that fails here is left to the
+    loader, which says why."""
+    missing = {}
+    for spec in dict.fromkeys(specs):
+        try:
+            seq, frames = pair_frames(spec, tuple(c["gaps"]))
+        except ValueError:
+            continue
+        if n := sum(not cache.path(seq, k).is_file() for k in frames):
+            missing[spec] = n
+    if len(missing) < 2 or sum(missing.values()) < PARALLEL_FRAMES:
+        return
+    log(f"features: {sum(missing.values())} frames of {len(missing)} folders, in parallel (one Ray task per folder)")
+    t0 = time.perf_counter()
+    calls = {spec: (absolute_spec(spec),) for spec in missing}
+    common = (tuple(c["gaps"]), c["detector"], c["max_keypoints"], cache.root.resolve())
+    done, interrupted = fleet.map_tasks(_fill, calls, common=common,
+                                        what="train: features", unit="folder")
+    if interrupted:
+        raise KeyboardInterrupt
+    log(f"features: {sum(n for n in done.values() if isinstance(n, int))} computed in {time.perf_counter() - t0:.0f} s")
 
 
 def pair_weights(group_sizes: list[int], balance: float) -> np.ndarray | None:
@@ -431,6 +467,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     inputs = [parse_seq_spec(s)[0] for s in (*train_specs, *val_specs)] + [c["init"] and Path(c["init"])]
     output_folder(out_dir, "--out", "the checkpoints", inputs, ("history.json", "summary.json"))  # before minutes of features
     cache = FeatureCache(make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]}), cache_dir)
+    prepare_features([*train_specs, *val_specs], cache, c, log)
     log("loading training pairs")
     groups = [_labelled_pairs([spec], cache, c, log) for spec in train_specs]
     train_pairs = [p for g in groups for p in g]
