@@ -706,3 +706,22 @@ def test_eval_shows_hard_pairs_by_inlier_ratio_and_gap_and_scores_pairs_without_
     alone = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "eval", f"{data_dir('euroc-v101-cam0')}:0-10",
                             "--gaps", "1", "--methods", "ratio", "--cache", str(cache.root)], capture_output=True, text=True)
     assert alone.returncode == 2 and "no pairs to evaluate" in alone.stderr  # the only folder: an error, as before
+
+
+def test_a_learned_fit_with_too_few_inliers_falls_back_to_the_classic_pipelines_pose(pairs):
+    """fallback_min_inliers: where MAGSAC++ on NM-Net's selection keeps fewer matches, the pose is the classic
+    pipeline's (on the hard validation set's < 10 % pairs the learned fit alone scored 44 AUC@5, the classic 78);
+    above it, and with 0, the learned fit stands. The network's scores are kept either way."""
+    cfg = {"nmnet_precision": "float32"}
+    c = to_correspondences(pairs[0])
+    learned = build("nmnet+ratio+magsac", {**cfg, "fallback_min_inliers": 0})(c, seed=0)
+    classic = build("ratio+magsac", cfg)(c, seed=0)
+    always = build("nmnet+ratio+magsac", {**cfg, "fallback_min_inliers": 100_000})(c, seed=0)
+    default = build("nmnet+ratio+magsac", cfg)(c, seed=0)
+    assert 30 <= learned.mask.sum() < 100_000  # an ordinary pair: hundreds of inliers
+    assert np.array_equal(always.mask, classic.mask) and np.allclose(always.pose.E, classic.pose.E)
+    assert always.scores is not None and np.array_equal(always.scores, learned.scores)
+    assert np.array_equal(default.mask, learned.mask) and np.allclose(default.pose.E, learned.pose.E)
+    assert not np.array_equal(learned.mask, classic.mask)  # the two fits differ: the test can tell them apart
+    also = build("nmnet+magsac", {**cfg, "fallback_min_inliers": 100_000})(c, seed=0)
+    assert np.array_equal(also.mask, classic.mask)

@@ -33,7 +33,8 @@ from .tracks import NO_TRACK, continue_tracks
 DEFAULT_CONFIG: dict = dict(FRONTEND_DEFAULTS)  # the settings vocabulary's front-end settings (core/settings.py)
 
 DETECTOR_KEYS = ("detector", "max_keypoints")  # resize_width restarts the chain by itself: another frame size
-SELECTOR_CONFIG = ("score_threshold", "k", "pose_threshold_px", "pose_refine_iterations", "nmnet_precision")
+SELECTOR_CONFIG = ("score_threshold", "k", "pose_threshold_px", "pose_refine_iterations", "nmnet_precision",
+                   "fallback_min_inliers")
 SELECTOR_KEYS = ("pose_estimator", "weights", *SELECTOR_CONFIG)
 
 

@@ -28,7 +28,7 @@ from .settings import FRONTEND_DEFAULTS, METHODS
 DEFAULT_CONFIG: dict = {
     # the settings of core/settings.py that the selectors read, by the same names and defaults
     **{name: FRONTEND_DEFAULTS[name] for name in ("pose_threshold_px", "score_threshold", "pose_refine_iterations",
-                                                  "nmnet_precision")},
+                                                  "nmnet_precision", "fallback_min_inliers")},
     "ratio": 0.8,
     "max_iters": 10000,  # MAGSAC++/RANSAC iteration cap (they stop earlier once confident)
     "seed": 0,  # MAGSAC++/RANSAC random samples (fixed: the same frames give the same pose)
@@ -142,6 +142,8 @@ def nmnet_select(model: NMNet | FastNMNet, c: Correspondences, cfg: dict) -> Sel
 def nmnet_magsac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Correspondences, cfg: dict,
                         classic: bool = False) -> Selection:
     """MAGSAC++ on NM-Net's selection (``classic``: also mutual NN and ratio test); keeps the network's scores.
+    When the fit keeps fewer than ``fallback_min_inliers`` matches, the pose is that of MAGSAC++ on the classic
+    pre-filter's matches (where it finds one): on such pairs the network left too little to fit.
 
     ``scored`` is ``nmnet_scores`` of ``c``. The network scores every nearest-neighbour match, as it
     was trained; the classic test is applied afterwards, so the two filters' rejections add up.
@@ -150,6 +152,9 @@ def nmnet_magsac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Co
     if classic:
         mask = mask & classic_mask(c, cfg)
     sel = robust_fit(c, mask, "magsac", cfg)
+    if sel.mask.sum() < cfg["fallback_min_inliers"]:  # too little of the pair left: the classic pipeline's pose
+        fallback = robust_fit(c, classic_mask(c, cfg), "magsac", cfg)
+        sel = fallback if fallback.pose is not None else sel
     return Selection(sel.mask, scores, sel.pose, sel.candidates)
 
 

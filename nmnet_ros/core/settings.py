@@ -83,6 +83,10 @@ SETTINGS: tuple[Setting, ...] = (
             tools=SELECTING, details="raise it for a poorly calibrated or rolling-shutter camera"),
     Setting("pose_refine_iterations", 5, "Levenberg-Marquardt steps polishing the pose after MAGSAC++ (0 = off)",
             range=(0, 50), tools=SELECTING, details="on the Cauchy-robust Sampson error"),
+    Setting("fallback_min_inliers", 30, "when MAGSAC++ on NM-Net's selection keeps fewer matches, the pose is fitted "
+            "on mutual NN + ratio 0.8's matches instead (0 = never)", range=(0, 100000), tools=SELECTING,
+            details="the pairs NM-Net leaves too little of (few inliers, wide baselines), where the classic "
+                    "pre-filter's pose is far better; ratio_magsac and magsac"),
     Setting("min_matches", 8, "fewer selected matches give no pose estimate (identity, variance 1e6)",
             range=(8, 100000), tools=("replay",)),
     Setting("static_flow_px", 1.0, "median flow (px) below which the camera counts as standing", range=(0.0, 1000.0),

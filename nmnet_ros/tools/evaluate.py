@@ -241,7 +241,8 @@ def plot_curves(errors: dict[str, np.ndarray], path: Path) -> None:
     save_figure(fig, path)  # at this very path, also without a .png suffix
 
 
-SELECTOR_SETTINGS = ("score_threshold", "pose_threshold_px", "pose_refine_iterations", "nmnet_precision")
+SELECTOR_SETTINGS = ("score_threshold", "pose_threshold_px", "pose_refine_iterations", "nmnet_precision",
+                     "fallback_min_inliers")
 
 
 def plot_path(args: argparse.Namespace) -> Path:
