@@ -5,7 +5,8 @@
 ``ransac``/``magsac``: robust essential-matrix fits on everything; ``ratio+magsac``: mutual NN +
 ratio test then MAGSAC++ (the strongest classic pipeline); ``nmnet+magsac``: MAGSAC++ on the
 network's selection; ``nmnet+ratio+magsac``: MAGSAC++ on the matches both NM-Net and mutual NN +
-ratio test keep (the front end's default; level with ``ratio+magsac`` on validation, see docs/evaluation.md); ``oracle``:
+ratio test keep (the front end's default; level with ``ratio+magsac`` on validation, see docs/evaluation.md); both
+NM-Net fits take ``ratio+magsac``'s pose where they keep fewer than ``fallback_min_inliers`` matches; ``oracle``:
 ground-truth inliers + MAGSAC++ (the ceiling).
 """
 
