@@ -349,10 +349,9 @@ def _timed(args: list[str]) -> dict:
     """Run one ``nmnet`` command; its wall time and peak memory (the child's own, from wait4)."""
     t0 = time.perf_counter()
     child = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", *args], cwd=ROOT)
-    _, status, usage = os.wait4(child.pid, 0)
-    child.returncode = os.waitstatus_to_exitcode(status)
-    if child.returncode:
-        raise subprocess.CalledProcessError(child.returncode, ["nmnet", *args])
+    _, status, usage = os.wait4(child.pid, 0)  # reaped here: Popen's own wait would not see the child's usage
+    if rc := os.waitstatus_to_exitcode(status):
+        raise subprocess.CalledProcessError(rc, ["nmnet", *args])
     return {"seconds": round(time.perf_counter() - t0, 1), "peak_memory_mb": round(usage.ru_maxrss / 1024)}
 
 
