@@ -350,8 +350,9 @@ def _timed(args: list[str]) -> dict:
     t0 = time.perf_counter()
     child = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", *args], cwd=ROOT)
     _, status, usage = os.wait4(child.pid, 0)  # reaped here: Popen's own wait would not see the child's usage
-    if rc := os.waitstatus_to_exitcode(status):
-        raise subprocess.CalledProcessError(rc, ["nmnet", *args])
+    child.returncode = os.waitstatus_to_exitcode(status)  # told to Popen, which would warn of a child still running
+    if child.returncode:
+        raise subprocess.CalledProcessError(child.returncode, ["nmnet", *args])
     return {"seconds": round(time.perf_counter() - t0, 1), "peak_memory_mb": round(usage.ru_maxrss / 1024)}
 
 
