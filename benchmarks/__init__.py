@@ -401,7 +401,7 @@ def run(name: str) -> Path:
 
 # tables made of several experiments' results: name -> (the experiments, the renderer)
 COMBINED: dict[str, tuple[tuple[str, ...], Callable[[], str]]] = {
-    "summary": (("validation", "sample-bag", "speed"), render_summary),
+    "summary": (("validation", "hard-validation", "sample-bag", "speed"), render_summary),
     "threshold": (("threshold-0.15px", "threshold-1px"), render_threshold),
     "hard-pairs": (("hard-validation", "hard-validation-no-fallback"), render_hard_pairs),
 }
