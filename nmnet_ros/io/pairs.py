@@ -168,17 +168,22 @@ def parse_seq_spec(spec: str) -> tuple[str, range | None]:
     return path, range(int(m[1]), int(m[2]) + 1)
 
 
+def _range_suffix(frames: range | None) -> str:
+    """':a-b' for frames a..b, '' for every frame: a spec's range as it is written."""
+    return f":{frames.start}-{frames.stop - 1}" if frames is not None else ""
+
+
 def absolute_spec(spec: str) -> str:
     """'PATH[:a-b]' with PATH absolute: for a worker that may run in another folder."""
     path, frames = parse_seq_spec(spec)
-    return str(Path(path).resolve()) + (f":{frames.start}-{frames.stop - 1}" if frames is not None else "")
+    return str(Path(path).resolve()) + _range_suffix(frames)
 
 
 def spec_label(spec: str) -> str:
     """A 'PATH[:a-b]' as the tables and progress lines name it: the folder's name and range (kitti-07:120-159), also
     when PATH ends in a slash (a shell's completion adds one: the name was ':120-159')."""
     path, frames = parse_seq_spec(spec)
-    return Path(path).name + (f":{frames.start}-{frames.stop - 1}" if frames is not None else "")
+    return Path(path).name + _range_suffix(frames)
 
 
 def shared_frames(specs: list[str], others: list[str], at_least: int = 1) -> list[str]:

@@ -349,7 +349,7 @@ def main(args: argparse.Namespace) -> int:
     groups = [label for label, f in folders.items() for _ in f.ratios]
     runs = f"; MAGSAC++/RANSAC methods: mean of {args.seeds} seeds" if args.seeds > 1 else ""
     net = f"; NM-Net in {precision_note(args.nmnet_precision)}" if set(methods) & set(NETWORK) else ""
-    each = "; each folder in a Ray task on one core (ms/pair: one core's)" if several else ""
+    each = "; each folder in a Ray task on one core (ms/pair: one core's)" if len(specs) > 1 else ""
     print(f"{len(ratios)} pairs, mean inlier ratio {np.mean(ratios):.1f}%{runs}{net}{each}\n")
     print(markdown_table(res["metrics"]))
     if args.reference in res["errors"] and len(res["errors"]) > 1:
