@@ -383,3 +383,16 @@ def test_eval_interrupted_writes_nothing_and_eval_needs_a_folder(cluster, tmp_pa
     assert "interrupted" in err and not out.exists()
     r = _nmnet("eval", "--methods", "ratio")
     assert r.returncode == 2 and "name a sequence folder, or give --manifest FILE" in r.stderr
+
+
+@pytest.mark.slow
+def test_a_task_that_raises_is_its_own_failure_said_in_one_line(monkeypatch):
+    """map_tasks: an exception in one task (here ZeroDivisionError, not a bad-input error) is that task's Failed,
+    named by its type and message; the other tasks' results come back."""
+    import operator
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    results, interrupted = fleet.map_tasks(operator.truediv, {"half": (1, 2), "zero": (1, 0)}, quiet=True)
+    assert not interrupted and results["half"] == 0.5
+    assert isinstance(results["zero"], fleet.Failed) and "ZeroDivisionError: division by zero" in results["zero"].error
+    assert "ray::" not in results["zero"].error  # not the worker's traceback

@@ -113,7 +113,7 @@ def run_one(job: Job, args: argparse.Namespace, recording: Path, run_dir: Path, 
             error = None if rc == 0 else f"{job.command} ended with code {rc}"
         except Exception as e:  # noqa: BLE001 - one recording's failure is its row, not the run's end
             traceback.print_exc()
-            error = f"{type(e).__name__}: {e}" if isinstance(e, (ValueError, OSError)) else traceback.format_exc(limit=1)
+            error = described(e)
     row = {"name": name, "recording": str(recording), "seconds": round(time.perf_counter() - t0, 2)}
     if error is None and (numbers := _numbers(job, building)) is None:
         error = f"{job.command} wrote no {job.summary}"
@@ -276,12 +276,19 @@ class Failed:
     error: str
 
 
+def described(e: Exception) -> str:
+    """A task's exception as its report says it: a bad input (ValueError, OSError) plainly, anything else with the
+    line of code it came from."""
+    return f"{type(e).__name__}: {e}" if isinstance(e, (ValueError, OSError)) else traceback.format_exc(limit=1).strip()
+
+
 def _guarded(fn: Callable, *args: object) -> object:
-    """``fn(*args)``, or its ValueError/OSError as :class:`Failed` (a bad input is that task's result, said plainly)."""
+    """``fn(*args)``, or its exception as :class:`Failed`: one input's failure is that task's result, not the run's
+    end (a Ray task error would come back as the worker's traceback)."""
     try:
         return fn(*args)
-    except (ValueError, OSError) as e:
-        return Failed(f"{type(e).__name__}: {e}")
+    except Exception as e:  # noqa: BLE001 - see above
+        return Failed(described(e))
 
 
 def map_tasks(fn: Callable, calls: dict[str, tuple], *, common: tuple = (), address: str | None = None,
@@ -291,8 +298,8 @@ def map_tasks(fn: Callable, calls: dict[str, tuple], *, common: tuple = (), addr
 
     ``common`` goes through Ray's object store once, not once per task: keep it small (options, paths). One progress
     bar over the tasks; ``done(name, result)`` sees each result as it arrives and returns a line to print above the
-    bar (a failure, named) or None. A ValueError/OSError in a task, or a worker that died more often than it is
-    retried, gives :class:`Failed`. Ctrl-C or SIGTERM cancels the tasks not finished. Returns the finished results by
+    bar (a failure, named) or None. An exception in a task, or a worker that died more often than it is retried,
+    gives :class:`Failed`. Ctrl-C or SIGTERM cancels the tasks not finished. Returns the finished results by
     name and whether the run was interrupted. Ray starts here (see :func:`_init_ray`) and is shut down on return.
     """
     import signal
