@@ -36,7 +36,7 @@ from ..core.settings import FRONTEND_DEFAULTS
 from ..io.cache import FeatureCache
 from ..io.datasets import LABEL_THRESHOLD, Sequence, pose_labels
 from ..io.outputs import output_folder, replace_atomically, write_json, written_by
-from ..io.pairs import PairData, absolute_spec, load_pairs, pair_frames, parse_seq_spec, shared_frames
+from ..io.pairs import PairData, load_pairs, pair_frames, parse_seq_spec, shared_frames
 from . import fleet
 from .options import MAX_ROLL_DEG, MIN_THINNED_RATIO, TRAIN_DEFAULTS
 
@@ -63,10 +63,9 @@ def _labelled_pairs(specs: list[str], cache: FeatureCache, c: dict, log: Callabl
 PARALLEL_FRAMES = 32  # frames to compute before Ray's start (seconds) pays; fewer: the loaders compute them in turn
 
 
-def _fill(gaps: tuple[int, ...], detector: str, max_keypoints: int, root: Path, spec: str) -> int:
-    """A Ray task: the features that ``spec``'s pairs need, into the cache at ``root``; how many were computed."""
-    seq, frames = pair_frames(spec, gaps)
-    return FeatureCache(make_detector(detector, {"max_keypoints": max_keypoints}), root).fill(seq, frames)
+def _fill(detector: str, max_keypoints: int, root: Path, folder: str, frames: list[int]) -> int:
+    """A Ray task: the features of ``folder``'s ``frames`` into the cache at ``root``; how many were computed."""
+    return FeatureCache(make_detector(detector, {"max_keypoints": max_keypoints}), root).fill(Sequence.load(folder), frames)
 
 
 def prepare_features(specs: list[str], cache: FeatureCache, c: dict, log: Callable[[str], None]) -> None:
@@ -74,22 +73,21 @@ def prepare_features(specs: list[str], cache: FeatureCache, c: dict, log: Callab
     runtime, or $RAY_ADDRESS's cluster with the cache on shared storage), when two or more folders lack
     :data:`PARALLEL_FRAMES` or more in all; the loaders then read them. A folder that fails here is left to the
     loader, which says why."""
-    missing = {}
+    missing: dict[str, tuple[str, list[int]]] = {}  # spec: (its folder, absolute; the frames it lacks)
     for spec in dict.fromkeys(specs):
         try:
             seq, frames = pair_frames(spec, tuple(c["gaps"]))
         except ValueError:
             continue
-        if n := sum(not cache.path(seq, k).is_file() for k in frames):
-            missing[spec] = n
-    if len(missing) < 2 or sum(missing.values()) < PARALLEL_FRAMES:
+        if lacking := [k for k in frames if not cache.path(seq, k).is_file()]:
+            missing[spec] = (str(seq.root.resolve()), lacking)
+    total = sum(len(frames) for _, frames in missing.values())
+    if len(missing) < 2 or total < PARALLEL_FRAMES:
         return
-    log(f"features: {sum(missing.values())} frames of {len(missing)} folders, in parallel (one Ray task per folder)")
+    log(f"features: {total} frames of {len(missing)} folders, in parallel (one Ray task per folder)")
     t0 = time.perf_counter()
-    calls = {spec: (absolute_spec(spec),) for spec in missing}
-    common = (tuple(c["gaps"]), c["detector"], c["max_keypoints"], cache.root.resolve())
-    done, interrupted = fleet.map_tasks(_fill, calls, common=common,
-                                        what="train: features", unit="folder")
+    common = (c["detector"], c["max_keypoints"], cache.root.resolve())
+    done, interrupted = fleet.map_tasks(_fill, missing, common=common, what="train: features", unit="folder")
     if interrupted:
         raise KeyboardInterrupt
     log(f"features: {sum(n for n in done.values() if isinstance(n, int))} computed in {time.perf_counter() - t0:.0f} s")
