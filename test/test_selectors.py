@@ -725,3 +725,9 @@ def test_a_learned_fit_with_too_few_inliers_falls_back_to_the_classic_pipelines_
     assert not np.array_equal(learned.mask, classic.mask)  # the two fits differ: the test can tell them apart
     also = build("nmnet+magsac", {**cfg, "fallback_min_inliers": 100_000})(c, seed=0)
     assert np.array_equal(also.mask, classic.mask)
+    import dataclasses
+
+    blind = dataclasses.replace(c, ratio=np.ones(len(c)))  # the ratio test keeps nothing: no classic pose to take
+    kept = build("nmnet+magsac", {**cfg, "fallback_min_inliers": 100_000})(blind, seed=0)
+    alone = build("nmnet+magsac", {**cfg, "fallback_min_inliers": 0})(blind, seed=0)
+    assert kept.pose is not None and np.array_equal(kept.mask, alone.mask)  # the learned fit stands

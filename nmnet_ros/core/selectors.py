@@ -150,11 +150,10 @@ def nmnet_magsac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Co
     was trained; the classic test is applied afterwards, so the two filters' rejections add up.
     """
     _, scores, mask = scored
-    if classic:
-        mask = mask & classic_mask(c, cfg)
-    sel = robust_fit(c, mask, "magsac", cfg)
+    pre = classic_mask(c, cfg)
+    sel = robust_fit(c, mask & pre if classic else mask, "magsac", cfg)
     if sel.mask.sum() < cfg["fallback_min_inliers"]:  # too little of the pair left: the classic pipeline's pose
-        fallback = robust_fit(c, classic_mask(c, cfg), "magsac", cfg)
+        fallback = robust_fit(c, pre, "magsac", cfg)
         sel = fallback if fallback.pose is not None else sel
     return Selection(sel.mask, scores, sel.pose, sel.candidates)
 
