@@ -326,6 +326,9 @@ def test_eval_scores_several_folders_in_parallel_as_it_scores_them_in_one_proces
             {k: v for k, v in metrics.items() if k != "sec_per_pair"}, abs=1e-9), name
     assert sum(b["pairs"] for b in got["bins"]["gap"].values()) == len(pairs) == 18
     assert np.isfinite(got["auc5_vs_reference"]["oracle"]["auc5"])
+    none = _nmnet("eval", str(tmp_path / "gone-a"), str(tmp_path / "gone-b"), "--methods", "ratio", env=env)
+    assert none.returncode == 2 and "no pairs to evaluate in any of the folders" in none.stderr, none.stderr
+    assert "failed: gone-a" in none.stderr and "failed: gone-b" in none.stderr  # each named, as it failed
 
 
 @pytest.mark.slow

@@ -15,7 +15,7 @@ import bisect
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -266,7 +266,7 @@ class Folder:
     ratios: list[float]  # each pair's putative inlier ratio, %
     gaps: list[int]  # each pair's frame gap
     runs: dict[str, Runs]
-    notes: list[str] = field(default_factory=list)  # its loader's warnings and lines, when not printed as they came
+    notes: list[str]  # its loader's and scorer's lines, when not printed as they came
 
 
 def score_folder(args: argparse.Namespace, methods: list[str], weights: dict[str, str], config: dict, spec: str,
