@@ -216,8 +216,8 @@ def test_recordings_of_the_same_name_get_folders_of_their_own():
 
 @pytest.mark.parametrize(("extra", "message"), [
     (["--json", "s.json"], "--json: not with several recordings"),
-    (["--gt", "gt.txt"], "--gt: not with several recordings"),
-    (["--live"], "--live: not with several recordings"),
+    (["--gt", "gt.txt"], "--gt: not with several recordings (each recording's ground truth must be in its bag"),
+    (["--live"], "--live: not with several recordings (they would play onto the same topics"),
 ])
 def test_options_a_fleet_run_cannot_honour_are_refused_before_any_work(tmp_path, extra, message):
     r = _nmnet("replay", str(SAMPLE), str(SAMPLE / "metadata.yaml"), "--out", str(tmp_path / "run"), *extra)
@@ -270,7 +270,8 @@ def test_label_takes_many_recordings_too_and_names_the_one_it_refuses(tmp_path):
     (["replay", "--out", "run"], "name a recording"),
     (["label", "run"], "name a recording"),
     (["replay", "--manifest", "missing.txt", "--out", "run"], "--manifest missing.txt: cannot read it"),
-    (["label", str(SAMPLE), str(SAMPLE / "metadata.yaml"), "run", "--truth", str(SAMPLE)], "--truth: not with several"),
+    (["label", str(SAMPLE), str(SAMPLE / "metadata.yaml"), "run", "--truth", str(SAMPLE)],
+     "--truth: not with several recordings (one --truth folder cannot check"),
     (["label", str(SAMPLE), str(SAMPLE / "metadata.yaml"), "run", "--json", "l.json"], "--json: not with several"),
 ])
 def test_what_a_run_over_recordings_cannot_start_from_is_refused_by_name(tmp_path, monkeypatch, argv, message):

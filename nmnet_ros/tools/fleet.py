@@ -157,12 +157,16 @@ def check_args(job: Job, args: argparse.Namespace, inputs: list[Path]) -> None:
         not_someone_elses(args.out / name, "the output")
 
 
-def several_refused(**given: object) -> None:
-    """Stop the options (flag: value) that are given: not with several recordings."""
+OUTPUTS_WHY = "each recording's outputs go to OUT/NAME/, the merged report to OUT/report.json, .md and .png"
+
+
+def several_refused(given: dict[str, object], why: dict[str, str] | None = None) -> None:
+    """Stop the options (flag: value) that are given: not with several recordings, for ``why[flag]`` (default: the
+    outputs' own places)."""
     for flag, value in given.items():
         if value not in (None, False):
-            raise ValueError(f"--{flag.replace('_', '-')}: not with several recordings (each recording's outputs go "
-                             "to OUT/NAME/, the merged report to OUT/report.json, .md and .png)")
+            reason = (why or {}).get(flag, OUTPUTS_WHY)
+            raise ValueError(f"--{flag.replace('_', '-')}: not with several recordings ({reason})")
 
 
 def _remove_partial(run_dir: Path) -> None:

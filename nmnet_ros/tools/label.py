@@ -186,7 +186,8 @@ def _label_into(args: argparse.Namespace, recording: Path, folder: Path) -> int:
 
 
 def _refused_for_a_fleet(args: argparse.Namespace) -> None:
-    fleet.several_refused(json=args.json, truth=args.truth)
+    fleet.several_refused({"json": args.json, "truth": args.truth},
+                          {"truth": "one --truth folder cannot check several recordings' labels"})
 
 
 FLEET = fleet.Job("label", _label_into, "reconstruction.json", (

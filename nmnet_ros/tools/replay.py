@@ -252,7 +252,9 @@ def _replay_into(args: argparse.Namespace, recording: Path, folder: Path) -> int
 
 
 def _refused_for_a_fleet(args: argparse.Namespace) -> None:
-    fleet.several_refused(json=args.json, plots=args.plots, gt=args.gt, live=args.live)
+    fleet.several_refused({"json": args.json, "plots": args.plots, "gt": args.gt, "live": args.live},
+                          {"gt": "each recording's ground truth must be in its bag: --gt-topic or --gt-tf",
+                           "live": "they would play onto the same topics; replay them offline"})
 
 
 FLEET = fleet.Job("replay", _replay_into, "summary.json", (
