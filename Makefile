@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.installed
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 TORCH_PIN   := $(shell grep -E '^torch==' requirements.txt)
 
-.PHONY: setup test test-fast demo docs lint clean cpu-torch
+.PHONY: setup test test-fast demo docs lint lock clean cpu-torch
 
 $(STAMP): requirements.txt setup.py package.xml
 	$(PYTHON) -m venv $(VENV)
@@ -44,6 +44,11 @@ demo: setup
 # the documentation site into site/ (strict: a broken link fails); `$(BIN)/mkdocs serve` to browse it
 docs: setup
 	$(BIN)/mkdocs build --strict
+
+# to change a pin: edit it in requirements.txt, delete the file's generated last section, then `make lock`
+# (installs the pins, then pins everything they bring in)
+lock: setup
+	$(BIN)/python scripts/lock.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info site
