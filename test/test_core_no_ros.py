@@ -207,7 +207,8 @@ def test_demo_runs_its_offline_part_without_ros(tmp_path):
 
 def test_ros_wheels_are_required_only_where_pypi_has_them():
     """requirements.txt: the ros-* wheels (PyPI has them for x86_64 Linux only) carry a marker for that
-    platform, so `pip install -r requirements.txt` also works on arm64 beside a ROS 2 install; the rest apply everywhere."""
+    platform, and so do the packages only they bring in, so `pip install -r requirements.txt` also works on arm64 beside a
+    ROS 2 install; the rest apply everywhere."""
     from pathlib import Path
 
     from packaging.requirements import Requirement
@@ -217,12 +218,11 @@ def test_ros_wheels_are_required_only_where_pypi_has_them():
     reqs = [Requirement(line) for line in lines]
     linux = {"sys_platform": "linux", "platform_system": "Linux"}
     for r in reqs:
-        if r.name.startswith("ros-"):
-            assert r.marker is not None and r.marker.evaluate({**linux, "platform_machine": "x86_64"}), r
+        assert r.marker is not None or not r.name.startswith("ros-"), r
+        if r.marker is not None:  # a ros-* wheel, or a package that only they need (empy, lark-parser)
+            assert r.marker.evaluate({**linux, "platform_machine": "x86_64"}), r
             assert not r.marker.evaluate({**linux, "platform_machine": "aarch64"}), r
             assert not r.marker.evaluate({"sys_platform": "darwin", "platform_system": "Darwin", "platform_machine": "arm64"}), r
-        else:
-            assert r.marker is None, r
         assert len(r.specifier) == 1 and next(iter(r.specifier)).operator == "==", f"{r}: not pinned exactly"
     assert {r.name for r in reqs} >= {"ros-rclpy", "torch", "rosbags", "mcap"}
 
