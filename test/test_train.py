@@ -263,6 +263,8 @@ def test_validation_on_training_frames_is_warned_before_any_features():
                                                      ("turn_deg", 90.0, "--turn-deg must be in"),
                                                      ("balance", -0.5, "--balance must be in"),
                                                      ("balance", 1.5, "--balance must be in"),
+                                                     ("max_view_angle", 0.0, "--max-view-angle must be in"),
+                                                     ("max_view_angle", 200.0, "--max-view-angle must be in"),
                                                      ("ess_loss", -0.1, "--ess-loss is a weight >= 0"),
                                                      ("lr", -1e-3, "--lr is Adam's step size, a number >= 0"),
                                                      ("lr", float("nan"), "--lr is Adam's step size, a number >= 0")])
@@ -271,6 +273,22 @@ def test_option_out_of_range_is_a_clear_error(tmp_path, key, value, match):
     with pytest.raises(ValueError, match=match):
         train([seq], [seq], tmp_path, {key: value}, cache_dir=tmp_path / "cache")
     assert not any(tmp_path.iterdir())  # refused before any work
+
+
+def test_max_view_angle_admits_wider_training_pairs(tmp_path, cache):
+    """train had no --max-view-angle: pairs more than 40 degrees apart (Herz-Jesus 0-8: 49) could not be trained on."""
+    from nmnet_ros.tools.train import DEFAULT_CONFIG, _labelled_pairs
+
+    spec = f"{data_dir('strecha-herz-jesus-p25')}:0-8"
+    notes = []
+    assert _labelled_pairs([spec], cache, {**DEFAULT_CONFIG, "gaps": (8,)}, notes.append) == []
+    assert any("none of its" in n and "40" in n for n in notes), notes  # said why
+    wide = _labelled_pairs([spec], cache, {**DEFAULT_CONFIG, "gaps": (8,), "max_view_angle": 60.0}, notes.append)
+    assert [(p.i, p.j) for p in wide] == [(0, 8)]
+    parser = argparse.ArgumentParser()
+    train_args(parser)
+    args = parser.parse_args(["--train", spec, "--val", spec, "--out", str(tmp_path), "--max-view-angle", "60"])
+    assert args.max_view_angle == 60.0
 
 
 def _fountain_pair(tmp_path):

@@ -18,6 +18,7 @@ from . import asl, kitti, tum
 from .trajectory import DatasetError, Trajectory, check_ros_time, check_seconds, read_table, read_tum, ros_seconds
 
 LABEL_THRESHOLD = 1e-4  # squared symmetric epipolar distance, normalised coordinates (paper)
+MAX_VIEW_ANGLE_DEG = 40.0  # a pair's cameras turned further apart share too little of the scene to label
 
 
 KALIBR_DISTORTION = {"radtan": "plumb_bob", "radial-tangential": "plumb_bob", "plumb_bob": "plumb_bob", "none": "plumb_bob",

@@ -15,7 +15,7 @@ import numpy as np
 from ..core.features import Features
 from ..core.matching import Matches, match_descriptors
 from .cache import FeatureCache
-from .datasets import LABEL_THRESHOLD, Sequence, epipolar_labels, has_baseline
+from .datasets import LABEL_THRESHOLD, MAX_VIEW_ANGLE_DEG, Sequence, epipolar_labels, has_baseline
 from .progress import progress
 
 if TYPE_CHECKING:
@@ -63,7 +63,6 @@ def view_angle_deg(seq: Sequence, i: int, j: int) -> float:
     return float(np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0))))
 
 
-MAX_VIEW_ANGLE_DEG = 40.0  # a pair's cameras turned further apart share too little of the scene to label
 
 
 def select_pairs(seq: Sequence, gaps: tuple[int, ...], frames: range | None = None,

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..core.settings import BY_NAME, METHODS, POSE_ESTIMATORS, for_tool, problem
-from ..io.datasets import FOLDERS_READ, LABEL_THRESHOLD
+from ..io.datasets import FOLDERS_READ, LABEL_THRESHOLD, MAX_VIEW_ANGLE_DEG
 
 SAMPLE_BAG = Path(__file__).parents[1] / "sample" / "kitti07_120-159"
 SHIPPED_WEIGHTS = Path(__file__).parents[1] / "weights" / "nmnet.pt"
@@ -268,6 +268,12 @@ def label(p: argparse.ArgumentParser) -> None:
                    help="let the mapper refine the focal length and distortion (default: the calibration is fixed)")
 
 
+def add_max_view_angle(p: argparse.ArgumentParser) -> None:
+    """``--max-view-angle`` of eval and train: which pairs are wide enough apart to leave out."""
+    p.add_argument("--max-view-angle", type=view_angle, default=MAX_VIEW_ANGLE_DEG, metavar="DEG",
+                   help="leave out pairs whose cameras' optical axes are further apart (wide baselines: up to 180)")
+
+
 def evaluate(p: argparse.ArgumentParser) -> None:
     """``nmnet eval``."""
     p.add_argument("seqs", nargs="*", metavar="SEQ[:a-b]", help=SEQS + "; several (or a quoted glob): scored in "
@@ -278,8 +284,7 @@ def evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
     p.add_argument("--stride", type=whole(1), default=1, help="use every n-th frame as a pair's first frame")
     p.add_argument("--max-pairs", type=whole(1), default=None, help="at most this many pairs per sequence (evenly spread)")
-    p.add_argument("--max-view-angle", type=view_angle, default=40.0, metavar="DEG",
-                   help="leave out pairs whose cameras' optical axes are further apart (wide baselines: up to 180)")
+    add_max_view_angle(p)
     p.add_argument("--weights-sp", type=Path, default=None, metavar="FILE", help="NM-Net-sp weights (default: shipped)")
     p.add_argument("--json", type=file_path, default=None, help="write {method: metrics} as JSON")
     p.add_argument("--plots", type=Path, default=None, help="folder for the recall-vs-error plot, eval_curves.png "
@@ -353,6 +358,7 @@ def train(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=d["device"], help="torch device for the network, e.g. cpu or cuda")
     p.add_argument("--workers", type=whole(1), default=d["workers"], help="threads mining neighbours for a batch")
     p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
+    add_max_view_angle(p)
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--label-threshold", type=float, default=d["label_threshold"],
                    help="inlier label: squared symmetric epipolar distance below this, normalised coordinates")

@@ -34,7 +34,7 @@ from ..core.model import NEIGHBORS, NMNet, WeightsError, load_model, network_inp
 from ..core.neighbors import mine_neighbors
 from ..core.settings import FRONTEND_DEFAULTS
 from ..io.cache import FeatureCache
-from ..io.datasets import LABEL_THRESHOLD, Sequence, pose_labels
+from ..io.datasets import LABEL_THRESHOLD, MAX_VIEW_ANGLE_DEG, Sequence, pose_labels
 from ..io.outputs import output_folder, replace_atomically, write_json, written_by
 from ..io.pairs import PairData, load_pairs, pair_frames, parse_seq_spec, shared_frames
 from . import fleet
@@ -43,6 +43,7 @@ from .options import MAX_ROLL_DEG, MIN_THINNED_RATIO, TRAIN_DEFAULTS
 DEFAULT_CONFIG: dict = {
     **TRAIN_DEFAULTS,
     "gaps": (1, 2, 3, 4, 5, 6, 7, 8, 9, 10),
+    "max_view_angle": MAX_VIEW_ANGLE_DEG,  # pairs whose optical axes are further apart (degrees) are left out
     "min_inliers": 5,
     "detector": FRONTEND_DEFAULTS["detector"],  # local feature frames: the node's (the shipped steps 0-2 used "hessian-affine")
     "max_keypoints": FRONTEND_DEFAULTS["max_keypoints"],  # keypoints per frame: the node's max_keypoints
@@ -57,7 +58,7 @@ def _labelled_pairs(specs: list[str], cache: FeatureCache, c: dict, log: Callabl
     """The pairs of ``specs`` with this run's gaps and labels, those with almost no inliers dropped; a folder without
     pairs is a warning (another may have some)."""
     return load_pairs(specs, tuple(c["gaps"]), cache, min_inliers=c["min_inliers"], label_threshold=c["label_threshold"],
-                      skip_empty=True, log=lambda line: log(f"  {line}"), tool="train")
+                      skip_empty=True, log=lambda line: log(f"  {line}"), tool="train", max_view_angle=c["max_view_angle"])
 
 
 PARALLEL_FRAMES = 32  # frames to compute before Ray's start (seconds) pays; fewer: the loaders compute them in turn
@@ -76,7 +77,7 @@ def prepare_features(specs: list[str], cache: FeatureCache, c: dict, log: Callab
     missing: dict[str, tuple[str, list[int]]] = {}  # spec: (its folder, absolute; the frames it lacks)
     for spec in dict.fromkeys(specs):
         try:
-            seq, frames = pair_frames(spec, tuple(c["gaps"]))
+            seq, frames = pair_frames(spec, tuple(c["gaps"]), c["max_view_angle"])
         except ValueError:
             continue
         if lacking := [k for k in frames if not cache.path(seq, k).is_file()]:
@@ -386,6 +387,8 @@ def _checked_neighbors(c: dict, train_specs: list[str]) -> str:
         raise ValueError(f"--ess-loss is a weight >= 0 (0 = classification loss only), got {c['ess_loss']}")
     if not 0 <= c["balance"] <= 1:
         raise ValueError(f"--balance must be in [0, 1] (0 = pairs equally often, 1 = folders equally often), got {c['balance']}")
+    if not 0 < c["max_view_angle"] <= 180:
+        raise ValueError(f"--max-view-angle must be in (0, 180] degrees, got {c['max_view_angle']}")
     if c["turn_deg"] > 0:
         for spec in train_specs:
             path = parse_seq_spec(spec)[0]
@@ -543,7 +546,8 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet train``."""
     keys = ("variant", "epochs", "steps_per_epoch", "batch", "num_corr", "seed", "max_val_pairs", "lr", "device", "workers",
-            "detector", "max_keypoints", "label_threshold", "augment", "thin_inliers", "turn_deg", "balance", "ratio_input", "ess_loss")
+            "detector", "max_keypoints", "label_threshold", "augment", "thin_inliers", "turn_deg", "balance", "ratio_input", "ess_loss",
+            "max_view_angle")
     cfg = {k: getattr(args, k) for k in keys}
     cfg["init"] = str(args.init) if args.init else None
     cfg["gaps"] = args.gaps
