@@ -72,3 +72,18 @@ def test_per_sequence_table_splits_the_pairs_by_sequence():
     assert "(" not in per_sequence_table({"new": better}, groups, "ref").splitlines()[2]  # no reference: AUC only
     with pytest.raises(ValueError, match="29 sequence labels for 30 pairs"):
         per_sequence_table({"ref": ref}, groups[:-1])
+
+
+def test_bins_give_each_methods_precision_and_recall_over_its_pairs_with_labels():
+    """The hard pairs' selection quality (a selector's precision where few matches are inliers) was only in ad-hoc
+    scripts; the bins carry each method's P/R/F over the runs on their pairs that have a labelled inlier."""
+    from nmnet_ros.tools.evaluate import binned, mean_prf, prf_table
+
+    errors = {"a": np.ones((3, 2))}
+    prfs = {"a": np.array([[[50, 100, 66.7]] * 2, [[100, 50, 66.7], [80, 50, 61.5]], [[np.nan] * 3] * 2])}
+    rows = binned(errors, ["hard", "hard", "easy"], prfs=prfs)
+    assert rows["hard"]["a"]["precision"] == pytest.approx((50 + 50 + 100 + 80) / 4)
+    assert rows["hard"]["a"]["recall"] == pytest.approx(75)
+    assert rows["easy"]["a"]["precision"] is None  # no labelled inlier there: undefined, not 0
+    assert mean_prf(prfs["a"])["precision"] == rows["hard"]["a"]["precision"]
+    assert prf_table(rows).splitlines()[2:] == ["| a | 70.0 / 75.0 | - |"]

@@ -703,6 +703,8 @@ def test_eval_shows_hard_pairs_by_inlier_ratio_and_gap_and_scores_pairs_without_
     for kind in ("inlier_ratio", "gap"):
         assert sum(b["pairs"] for b in bins[kind].values()) == n
         assert all("vs_reference" in b["oracle"] and "auc5" in b["ratio+magsac"] for b in bins[kind].values())
+        assert all(b["oracle"]["precision"] == 100 for b in bins[kind].values())  # a subset of the true inliers
+    assert "| precision / recall (%) by putative inlier ratio |" in run.stdout
     alone = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "eval", f"{data_dir('euroc-v101-cam0')}:0-10",
                             "--gaps", "1", "--methods", "ratio", "--cache", str(cache.root)], capture_output=True, text=True)
     assert alone.returncode == 2 and "no pairs to evaluate" in alone.stderr  # the only folder: an error, as before

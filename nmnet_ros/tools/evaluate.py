@@ -37,7 +37,7 @@ from . import fleet
 class Runs:
     """One method's runs on a list of pairs: what a folder's task returns (no frame data), merged by concatenation."""
 
-    prfs: list[dict]  # P/R/F of every run on a pair with a labelled inlier (undefined on the others)
+    prfs: np.ndarray  # (pairs, seeds, 3): every run's precision, recall, F (%); NaN on a pair without a labelled inlier
     errors: np.ndarray  # (pairs, seeds, 2): every run's rotation and translation error, degrees
     secs: list[float]  # each pair's time of one full run (selection + pose)
 
@@ -59,34 +59,46 @@ def score(pairs: list[PairData], methods: list[str], weights: dict[str, str] | N
             sels = [select(c, seed=0) if name in ROBUST else select(c)]
             secs.append(time.perf_counter() - t0)  # one full run; further seeds reuse NM-Net's pass
             sels += [select(c, seed=s) for s in range(1, runs)]
-            if p.labels.any():  # P/R/F are undefined without a labelled inlier; the pose is scored all the same
-                prfs += [prf(sel.mask, p.labels) for sel in sels]
+            undefined = not p.labels.any()  # P/R/F need a labelled inlier; the pose is scored all the same
+            prfs.append([[np.nan] * 3 if undefined else list(prf(sel.mask, p.labels).values()) for sel in sels]
+                        * (seeds // runs))
             errs.append([pose_error_deg(sel.pose, p.R, p.t) for sel in sels] * (seeds // runs))
-        out[name] = Runs(prfs, np.array(errs, np.float64).reshape(len(pairs), seeds, 2), secs)
+        out[name] = Runs(np.array(prfs, np.float64).reshape(len(pairs), seeds, 3),
+                         np.array(errs, np.float64).reshape(len(pairs), seeds, 2), secs)
         log(f"eval: {name}: {len(pairs)} pairs x {runs} run(s) in {time.perf_counter() - t_method:.0f} s")
     return out
 
 
+PRF = ("precision", "recall", "f1")
+
+
+def mean_prf(prfs: np.ndarray) -> dict[str, float | None]:
+    """Mean precision, recall and F (%) over the runs on pairs with a labelled inlier; None where there are none."""
+    defined = prfs[~np.isnan(prfs[..., 0])]
+    return {k: float(defined[:, i].mean()) if len(defined) else None for i, k in enumerate(PRF)}
+
+
 def summarize(runs: dict[str, Runs]) -> dict:
-    """{"metrics": {method: metrics}, "errors": {method: (pairs, seeds) errors}}: each metric is the mean over all
-    runs, except the time, that of one run; a pair's error is the larger of its rotation and translation errors."""
+    """{"metrics": {method: metrics}, "errors": {method: (pairs, seeds) errors}, "prfs": {method: (pairs, seeds, 3)}}:
+    each metric is the mean over all runs, except the time, that of one run; a pair's error is the larger of its
+    rotation and translation errors."""
     out, errors = {}, {}
     for name, r in runs.items():
         e = r.errors
         aucs = pose_auc(e.max(2).ravel())
         out[name] = {
-            **{k: float(np.mean([x[k] for x in r.prfs])) if r.prfs else None for k in ("precision", "recall", "f1")},
+            **mean_prf(r.prfs),
             "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2],
             "median_rot_deg": float(np.median(e[..., 0])), "median_trans_deg": float(np.median(e[..., 1])),
             "pairs": len(e), "sec_per_pair": float(np.mean(r.secs)),
         }
         errors[name] = e.max(2)
-    return {"metrics": out, "errors": errors}
+    return {"metrics": out, "errors": errors, "prfs": {name: r.prfs for name, r in runs.items()}}
 
 
 def merge(parts: list[dict[str, Runs]]) -> dict[str, Runs]:
     """Several folders' runs as one list of pairs, in the order given (the bootstrap draws by position)."""
-    return {name: Runs([x for p in parts for x in p[name].prfs], np.concatenate([p[name].errors for p in parts]),
+    return {name: Runs(np.concatenate([p[name].prfs for p in parts]), np.concatenate([p[name].errors for p in parts]),
                        [x for p in parts for x in p[name].secs]) for name in parts[0]}
 
 
@@ -162,9 +174,11 @@ def pair_bins(ratios: list[float], gaps: list[int]) -> dict[str, list[str]]:
     return {"inlier_ratio": [ratio_bin(r) for r in ratios], "gap": [gap_bin(g) for g in gaps]}
 
 
-def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None) -> dict:
+def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None,
+           prfs: dict[str, np.ndarray] | None = None) -> dict:
     """Per group (``groups[k]`` names pair k's), in first-seen order: its pair count and every method's AUC@5, with the
-    paired difference to ``reference`` [95 %] when it is among the methods. The JSON's ``bins`` and the tables'."""
+    paired difference to ``reference`` [95 %] when it is among the methods, and with ``prfs`` (:func:`summarize`'s)
+    its mean precision, recall and F there. The JSON's ``bins`` and the tables'."""
     labels = np.asarray(groups, object)
     n_pairs = len(next(iter(errors.values())))
     if len(labels) != n_pairs:
@@ -175,7 +189,7 @@ def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str | No
         row: dict = {"pairs": int(sel.sum())}
         for name, e in errors.items():
             e_g = np.asarray(e)[sel]
-            row[name] = {"auc5": 100 * pose_auc(e_g.ravel(), (5.0,))[0]}
+            row[name] = {"auc5": 100 * pose_auc(e_g.ravel(), (5.0,))[0], **(mean_prf(prfs[name][sel]) if prfs else {})}
             if reference in errors and name != reference:
                 d, lo, hi = paired_auc_difference(e_g, np.asarray(errors[reference])[sel])
                 row[name]["vs_reference"] = {"auc5": d, "low": lo, "high": hi}
@@ -193,6 +207,18 @@ def group_table(rows: dict, title: str = "AUC@5 per sequence (pairs)") -> str:
         for r in rows.values():
             cell, d = f"{r[name]['auc5']:.1f}", r[name].get("vs_reference")
             cells.append(cell + (f" ({d['auc5']:+.1f} [{d['low']:+.1f}, {d['high']:+.1f}])" if d else ""))
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def prf_table(rows: dict) -> str:
+    """:func:`binned`'s rows (with P/R/F) as a markdown table of each method's precision / recall per group."""
+    methods = [k for k in next(iter(rows.values())) if k != "pairs"]
+    head = " | ".join(f"{g} ({r['pairs']})" for g, r in rows.items())
+    lines = [f"| precision / recall (%) by putative inlier ratio | {head} |", "|---" * (len(rows) + 1) + "|"]
+    for name in methods:
+        cells = [f"{r[name]['precision']:.1f} / {r[name]['recall']:.1f}" if r[name]["precision"] is not None else "-"
+                 for r in rows.values()]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -360,10 +386,13 @@ def main(args: argparse.Namespace) -> int:
     if len(folders) > 1:
         print("\n" + per_sequence_table(res["errors"], groups, args.reference))
     gaps = [g for f in folders.values() for g in f.gaps]
-    bins = {kind: binned(res["errors"], groups_of, args.reference) for kind, groups_of in pair_bins(ratios, gaps).items()}
+    bins = {kind: binned(res["errors"], groups_of, args.reference, res["prfs"])
+            for kind, groups_of in pair_bins(ratios, gaps).items()}
     for kind, title in (("inlier_ratio", "AUC@5 by putative inlier ratio (pairs)"), ("gap", "AUC@5 by frame gap (pairs)")):
         ordered = dict(sorted(bins[kind].items(), key=lambda kv: BIN_ORDER[kv[0]]))  # the hard pairs first
         print("\n" + group_table(ordered, title))
+        if kind == "inlier_ratio":  # how well each selection sorts the hard pairs' matches
+            print("\n" + prf_table(ordered))
     if failed:
         print(f"\nnot evaluated, failed: {'; '.join(f'{k}: {v}' for k, v in failed.items())}")
     if args.json:  # before the plot: the numbers are what a script reads
