@@ -274,7 +274,7 @@ EXPERIMENTS: dict[str, Experiment] = {
     "hard-validation": Experiment(
         "the hard validation set: the validation scenes at frame gaps up to 30 and views up to 60 degrees apart",
         ("eval", *VALIDATION, "--gaps", "1-30", "--max-view-angle", "60", "--methods",
-         "ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,oracle", "--seeds", "3", "--nmnet-precision", "float32",
+         "nmnet,ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,oracle", "--seeds", "3", "--nmnet-precision", "float32",
          "--json", "{out}", "--plots", "{tmp}"), None, needs_data=True),
     "hard-validation-no-fallback": Experiment(
         "the hard validation set with fallback_min_inliers 0: the learned fit's pose on every pair",
