@@ -267,7 +267,7 @@ def _run_tasks(job: Job, args: argparse.Namespace, run_dir: Path, todo: list[tup
                                    address=args.ray_address, what=f"{job.command}: recordings", unit="rec",
                                    quiet=getattr(args, "no_progress", False), done=done)
     finally:
-        _remove_partial(run_dir)  # the cancelled or killed tasks' half-made folders
+        _remove_partial(run_dir)  # the interrupted or killed tasks' half-made folders
     if interrupted:
         print(f"the finished recordings are complete in {run_dir}", file=sys.stderr)
     return interrupted
@@ -303,7 +303,7 @@ def map_tasks(fn: Callable, calls: dict[str, tuple], *, common: tuple = (), addr
     ``common`` goes through Ray's object store once, not once per task: keep it small (options, paths). One progress
     bar over the tasks; ``done(name, result)`` sees each result as it arrives and returns a line to print above the
     bar (a failure, named) or None. An exception in a task, or a worker that died more often than it is retried,
-    gives :class:`Failed`. Ctrl-C or SIGTERM cancels the tasks not finished. Returns the finished results by
+    gives :class:`Failed`. Ctrl-C or SIGTERM ends the tasks not finished (Ray's shutdown). Returns the finished results by
     name and whether the run was interrupted. Ray starts here (see :func:`_init_ray`) and is shut down on return.
     """
     import signal
@@ -339,8 +339,9 @@ def map_tasks(fn: Callable, calls: dict[str, tuple], *, common: tuple = (), addr
     except KeyboardInterrupt:
         interrupted = True
         bar.write(f"interrupted: {len(pending)} of {len(calls)} not finished", file=sys.stderr)
-        for ref in pending:
-            ray.cancel(ref, force=True)
+        # No ray.cancel: it races with a task finishing at that moment and Ray then aborts the driver ("Tried to
+        # complete task that was not pending", ray-project/ray#54798), exit 1 instead of 130. The shutdown ends
+        # them: a driver's tasks and their workers die with it, on a local runtime and on a cluster alike.
     finally:
         bar.close()
         ray.shutdown()
