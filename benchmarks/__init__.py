@@ -96,7 +96,7 @@ def _hard_row(label: str, r: dict, method: str) -> str:
 def render_hard_pairs() -> str:
     """The hard validation set: AUC@5 per putative-inlier-ratio bin and over all pairs, with the difference to the
     classic pipeline and its 95 % interval; the default also without its classic fallback (a run of its own)."""
-    from nmnet_ros.tools.evaluate import BIN_ORDER
+    from nmnet_ros.tools.evaluate import BIN_ORDER, prf_cell
 
     main, plain = _stored("hard-validation"), _stored("hard-validation-no-fallback")
     r = main["result"]
@@ -113,7 +113,7 @@ def render_hard_pairs() -> str:
     rows += ["", f"| precision / recall (%) by putative inlier ratio | {head} | all |", "|---" * (len(bins) + 2) + "|"]
     for method, label in (("nmnet", "NM-Net's selection"), ("ratio+magsac", "classic: the inliers of ratio + MAGSAC++"),
                           ("nmnet+ratio+magsac", "default: the inliers of its fit")):
-        cells = [f"{x['precision']:.1f} / {x['recall']:.1f}" for x in [b[method] for _, b in bins] + [r["methods"][method]]]
+        cells = [prf_cell(x) for x in [b[method] for _, b in bins] + [r["methods"][method]]]
         rows.append(f"| {label} | " + " | ".join(cells) + " |")
     m = main["provenance"]["machine"]
     return "\n".join(rows) + (

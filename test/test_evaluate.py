@@ -77,7 +77,7 @@ def test_per_sequence_table_splits_the_pairs_by_sequence():
 def test_bins_give_each_methods_precision_and_recall_over_its_pairs_with_labels():
     """The hard pairs' selection quality (a selector's precision where few matches are inliers) was only in ad-hoc
     scripts; the bins carry each method's P/R/F over the runs on their pairs that have a labelled inlier."""
-    from nmnet_ros.tools.evaluate import binned, mean_prf, prf_table
+    from nmnet_ros.tools.evaluate import binned, group_table, mean_prf, prf_cell
 
     errors = {"a": np.ones((3, 2))}
     prfs = {"a": np.array([[[50, 100, 66.7]] * 2, [[100, 50, 66.7], [80, 50, 61.5]], [[np.nan] * 3] * 2])}
@@ -86,4 +86,4 @@ def test_bins_give_each_methods_precision_and_recall_over_its_pairs_with_labels(
     assert rows["hard"]["a"]["recall"] == pytest.approx(75)
     assert rows["easy"]["a"]["precision"] is None  # no labelled inlier there: undefined, not 0
     assert mean_prf(prfs["a"])["precision"] == rows["hard"]["a"]["precision"]
-    assert prf_table(rows).splitlines()[2:] == ["| a | 70.0 / 75.0 | - |"]
+    assert group_table(rows, "P / R", prf_cell).splitlines()[2:] == ["| a | 70.0 / 75.0 | - |"]

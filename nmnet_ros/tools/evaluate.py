@@ -59,9 +59,9 @@ def score(pairs: list[PairData], methods: list[str], weights: dict[str, str] | N
             sels = [select(c, seed=0) if name in ROBUST else select(c)]
             secs.append(time.perf_counter() - t0)  # one full run; further seeds reuse NM-Net's pass
             sels += [select(c, seed=s) for s in range(1, runs)]
-            undefined = not p.labels.any()  # P/R/F need a labelled inlier; the pose is scored all the same
-            prfs.append([[np.nan] * 3 if undefined else list(prf(sel.mask, p.labels).values()) for sel in sels]
-                        * (seeds // runs))
+            # P/R/F need a labelled inlier; the pose is scored all the same
+            scored = [prf(sel.mask, p.labels) if p.labels.any() else dict.fromkeys(PRF, np.nan) for sel in sels]
+            prfs.append([[m[k] for k in PRF] for m in scored] * (seeds // runs))
             errs.append([pose_error_deg(sel.pose, p.R, p.t) for sel in sels] * (seeds // runs))
         out[name] = Runs(np.array(prfs, np.float64).reshape(len(pairs), seeds, 3),
                          np.array(errs, np.float64).reshape(len(pairs), seeds, 2), secs)
@@ -197,29 +197,23 @@ def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str | No
     return out
 
 
-def group_table(rows: dict, title: str = "AUC@5 per sequence (pairs)") -> str:
-    """:func:`binned`'s rows as a markdown table, one column per group, one row per method."""
+def auc_cell(m: dict) -> str:
+    """A method's AUC@5 in a group, with its difference to the reference [95 %] when it has one."""
+    d = m.get("vs_reference")
+    return f"{m['auc5']:.1f}" + (f" ({d['auc5']:+.1f} [{d['low']:+.1f}, {d['high']:+.1f}])" if d else "")
+
+
+def prf_cell(m: dict) -> str:
+    """A method's precision / recall (%) in a group; '-' where no pair there has a labelled inlier."""
+    return f"{m['precision']:.1f} / {m['recall']:.1f}" if m["precision"] is not None else "-"
+
+
+def group_table(rows: dict, title: str = "AUC@5 per sequence (pairs)", cell: Callable[[dict], str] = auc_cell) -> str:
+    """:func:`binned`'s rows as a markdown table, one column per group, one row per method, each cell ``cell``'s."""
     methods = [k for k in next(iter(rows.values())) if k != "pairs"]
     head = " | ".join(f"{g} ({r['pairs']})" for g, r in rows.items())
     lines = [f"| {title} | {head} |", "|---" * (len(rows) + 1) + "|"]
-    for name in methods:
-        cells = []
-        for r in rows.values():
-            cell, d = f"{r[name]['auc5']:.1f}", r[name].get("vs_reference")
-            cells.append(cell + (f" ({d['auc5']:+.1f} [{d['low']:+.1f}, {d['high']:+.1f}])" if d else ""))
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def prf_table(rows: dict) -> str:
-    """:func:`binned`'s rows (with P/R/F) as a markdown table of each method's precision / recall per group."""
-    methods = [k for k in next(iter(rows.values())) if k != "pairs"]
-    head = " | ".join(f"{g} ({r['pairs']})" for g, r in rows.items())
-    lines = [f"| precision / recall (%) by putative inlier ratio | {head} |", "|---" * (len(rows) + 1) + "|"]
-    for name in methods:
-        cells = [f"{r[name]['precision']:.1f} / {r[name]['recall']:.1f}" if r[name]["precision"] is not None else "-"
-                 for r in rows.values()]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += [f"| {name} | " + " | ".join(cell(r[name]) for r in rows.values()) + " |" for name in methods]
     return "\n".join(lines)
 
 
@@ -392,7 +386,7 @@ def main(args: argparse.Namespace) -> int:
         ordered = dict(sorted(bins[kind].items(), key=lambda kv: BIN_ORDER[kv[0]]))  # the hard pairs first
         print("\n" + group_table(ordered, title))
         if kind == "inlier_ratio":  # how well each selection sorts the hard pairs' matches
-            print("\n" + prf_table(ordered))
+            print("\n" + group_table(ordered, "precision / recall (%) by putative inlier ratio", prf_cell))
     if failed:
         print(f"\nnot evaluated, failed: {'; '.join(f'{k}: {v}' for k, v in failed.items())}")
     if args.json:  # before the plot: the numbers are what a script reads
