@@ -12,7 +12,6 @@ import sys
 from importlib.metadata import PackageNotFoundError, distribution
 from pathlib import Path
 
-from packaging.markers import Marker
 from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 
@@ -41,7 +40,7 @@ def closure(direct: list[Requirement]) -> dict[str, tuple[str, set[str]]]:
             found.setdefault(key[0], (dist.version, set()))[1].add(marker)
             for line in dist.requires or []:
                 req = Requirement(line)
-                env_ok = any(Marker(str(req.marker)).evaluate({"extra": e}) for e in extras | {""}) if req.marker else True
+                env_ok = any(req.marker.evaluate({"extra": e}) for e in extras | {""}) if req.marker else True
                 if env_ok:
                     todo.append((req.name, set(req.extras)))
     return found
