@@ -63,7 +63,9 @@ def render_sample_bag(r: dict) -> str:
 
 METHOD_NAMES = {"nmnet+ratio+magsac": "NM-Net + ratio + MAGSAC++ (default)", "ratio+magsac": "classic: ratio + MAGSAC++",
                 "nmnet+magsac": "NM-Net + MAGSAC++", "magsac": "MAGSAC++ alone", "oracle": "oracle (true inliers + MAGSAC++)",
-                "nmnet": "NM-Net alone (weighted eight-point)", "ratio": "ratio test alone"}
+                "nmnet": "NM-Net alone (weighted eight-point)", "ratio": "ratio test alone",
+                "ratio+poselib": "classic with PoseLib: ratio + PoseLib",
+                "nmnet+prosac": "PoseLib sampling mutual matches (ratio < 0.9) in NM-Net's order"}
 
 
 def render_validation(r: dict) -> str:
@@ -282,7 +284,8 @@ EXPERIMENTS: dict[str, Experiment] = {
     "hard-validation": Experiment(
         "the hard validation set: the validation scenes at frame gaps up to 30 and views up to 60 degrees apart",
         ("eval", *VALIDATION, "--gaps", "1-30", "--max-view-angle", "60", "--methods",
-         "nmnet,ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,oracle", "--seeds", "3", "--nmnet-precision", "float32",
+         "nmnet,ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,ratio+poselib,nmnet+prosac,oracle", "--seeds", "3",
+         "--nmnet-precision", "float32",
          "--json", "{out}", "--plots", "{tmp}"), None, needs_data=True),
     "hard-validation-no-fallback": Experiment(
         "the hard validation set with fallback_min_inliers 0: the learned fit's pose on every pair",

@@ -68,7 +68,7 @@ def test_exact_synthetic_pose_from_all_estimators():
     x0, x1, R, t = synthetic()
     E = essential_from_pose(R, t)
     assert np.max(sym_epipolar_sq(E, x0, x1)) < 1e-20
-    for method in ("magsac", "ransac"):
+    for method in ("magsac", "poselib", "ransac"):
         E_est, mask = estimate_essential(x0, x1, method, 1e-4)
         pose = recover_pose(E_est, x0, x1, mask)
         r, tt = pose_error_deg(pose, R, t)
@@ -379,8 +379,24 @@ def test_prosac_samples_the_given_order_and_needs_magsac():
         estimate_essential(x0, x1, "ransac", 1e-3, prosac=True)
     with pytest.raises(ValueError, match="PROSAC sampling is a MAGSAC"):  # refused before the point count
         estimate_essential(x0[:5], x1[:5], "ransac", 1e-3, prosac=True)
-    with pytest.raises(ValueError, match="unknown robust estimator 'lmeds'"):
-        estimate_essential(x0[:5], x1[:5], "lmeds", 1e-3)
+
+
+def test_poselib_finds_the_pose_among_outliers_its_order_and_seed_reach_its_sampler():
+    """PoseLib's LO-RANSAC: the pose of 25 % noisy inliers among outliers, E = [t]x R with the inliers it kept;
+    with PROSAC and the inliers first, 10 iterations find them, in a random order not; the seed picks other
+    samples, repeatably."""
+    x0, x1 = _noisy_with_outliers(100, 300, 5e-4)
+    _, _, R, t = synthetic(400, seed=3)
+    E, mask = estimate_essential(x0, x1, "poselib", 1e-3)
+    assert max(pose_error_deg(recover_pose(E, x0, x1, mask), R, t)) < 0.5
+    assert mask[:100].mean() > 0.9 and mask[100:].mean() < 0.02 and np.linalg.svd(E, compute_uv=False)[2] < 1e-9
+    shuffled = np.random.default_rng(0).permutation(400)
+    first = estimate_essential(x0, x1, "poselib", 1e-3, max_iters=10, prosac=True)
+    mixed = estimate_essential(x0[shuffled], x1[shuffled], "poselib", 1e-3, max_iters=10, prosac=True)
+    assert first[1][:100].mean() > 0.9 and (mixed is None or mixed[1][np.argsort(shuffled)][:100].mean() < 0.5)
+    runs = [estimate_essential(x0, x1, "poselib", 1e-3, max_iters=30, seed=s) for s in range(4)]
+    again = estimate_essential(x0, x1, "poselib", 1e-3, max_iters=30, seed=2)
+    assert np.array_equal(again[1], runs[2][1]) and len({r[1].tobytes() for r in runs}) > 1
 
 
 def test_sampson_distance_is_zero_on_the_true_model_and_grows_off_it():

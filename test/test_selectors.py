@@ -733,3 +733,22 @@ def test_a_learned_fit_with_too_few_inliers_falls_back_to_the_classic_pipelines_
     kept = build("nmnet+magsac", {**cfg, "fallback_min_inliers": 100_000})(blind, seed=0)
     alone = build("nmnet+magsac", {**cfg, "fallback_min_inliers": 0})(blind, seed=0)
     assert kept.pose is not None and np.array_equal(kept.mask, alone.mask)  # the learned fit stands
+
+
+def test_poselib_methods_fit_their_pools_and_get_the_pose(pairs):
+    """ratio+poselib fits the classic pre-filter's matches; nmnet+prosac samples the wider pool (mutual, ratio < 0.9)
+    in NM-Net's order and keeps only matches of it; both get the pose of validation pairs."""
+    from nmnet_ros.core.selectors import PROSAC_POOL_RATIO
+
+    classic, prosac = build("ratio+poselib"), build("nmnet+prosac")
+    errs = {"ratio+poselib": [], "nmnet+prosac": []}
+    for p in pairs:
+        c = to_correspondences(p)
+        a, b = classic(c), prosac(c, seed=0)
+        assert not np.any(a.mask & ~classic_mask(c)) and a.mask.sum() >= 8
+        pool = c.mutual & (c.ratio < PROSAC_POOL_RATIO)
+        assert np.array_equal(b.candidates, pool) and not np.any(b.mask & ~pool) and b.scores is not None
+        errs["ratio+poselib"].append(max(pose_error_deg(a.pose, p.R, p.t)))
+        errs["nmnet+prosac"].append(max(pose_error_deg(b.pose, p.R, p.t)))
+    print({k: np.round(v, 2) for k, v in errs.items()})
+    assert all(np.median(v) < 1.0 for v in errs.values())

@@ -225,6 +225,7 @@ class PoseEstimate:
 
 
 MIN_MATCHES = 8
+ROBUST_ESTIMATORS = ("magsac", "poselib", "ransac")
 
 
 def _magsac_params(threshold: float, confidence: float, max_iters: int, seed: int, prosac: bool = False) -> cv2.UsacParams:
@@ -244,21 +245,23 @@ def _magsac_params(threshold: float, confidence: float, max_iters: int, seed: in
 def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac", threshold: float = 1e-3,
                        confidence: float = 0.999, max_iters: int = 10000, seed: int = 0,
                        prosac: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
-    """Robust E from normalised points: ``magsac`` (OpenCV USAC MAGSAC++) or ``ransac``.
+    """Robust E from normalised points: ``magsac`` (OpenCV USAC MAGSAC++), ``poselib`` (PoseLib's LO-RANSAC on the
+    five-point solver with its own non-linear refinement) or ``ransac`` (OpenCV's).
 
-    ``threshold`` is in normalised units (pixels / focal length); ``seed`` picks the random
-    samples (on hard pairs a different seed can give a different pose); ``prosac``: the points
-    come best first (e.g. by a network's score) and MAGSAC++ samples them with PROSAC instead of
-    uniformly. Returns (E, inlier mask) or None when there are fewer than 8 correspondences or no
-    model was found.
+    ``threshold`` is in normalised units (pixels / focal length; PoseLib's is a Sampson distance); ``seed`` picks
+    the random samples (on hard pairs a different seed can give a different pose); ``prosac``: the points come best
+    first (e.g. by a network's score) and MAGSAC++ or PoseLib samples them with PROSAC instead of uniformly.
+    Returns (E, inlier mask) or None when there are fewer than 8 correspondences or no model was found.
     """
-    if method not in ("magsac", "ransac"):  # the arguments first: a bad call fails however few points it has
-        raise ValueError(f"unknown robust estimator {method!r}; use one of ['magsac', 'ransac']")
-    if prosac and method != "magsac":
-        raise ValueError("PROSAC sampling is a MAGSAC++ (USAC) option; use method='magsac'")
+    if method not in ROBUST_ESTIMATORS:  # the arguments first: a bad call fails however few points it has
+        raise ValueError(f"unknown robust estimator {method!r}; use one of {list(ROBUST_ESTIMATORS)}")
+    if prosac and method == "ransac":
+        raise ValueError("PROSAC sampling is a MAGSAC++ (USAC) and PoseLib option; use method='magsac' or 'poselib'")
     x0n, x1n = _checked_pair(x0n, x1n)
     if len(x0n) < MIN_MATCHES:
         return None
+    if method == "poselib":
+        return _poselib_essential(x0n, x1n, threshold, confidence, max_iters, seed, prosac)
     if method == "magsac":
         eye, no_dist = np.eye(3), np.zeros(5)
         E, mask = cv2.findEssentialMat(x0n, x1n, eye, eye, no_dist, no_dist,
@@ -270,6 +273,23 @@ def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac",
     if E is None or E.shape[0] < 3 or mask is None:
         return None
     return E[:3], mask.ravel().astype(bool)  # several stacked solutions: the first is the best
+
+
+def _poselib_essential(x0n: np.ndarray, x1n: np.ndarray, threshold: float, confidence: float, max_iters: int,
+                       seed: int, prosac: bool) -> tuple[np.ndarray, np.ndarray] | None:
+    """PoseLib's relative pose on normalised points (a unit pinhole camera), as (E, inlier mask)."""
+    import poselib  # only this estimator needs it
+
+    camera = {"model": "PINHOLE", "width": 1, "height": 1, "params": [1.0, 1.0, 0.0, 0.0]}
+    ransac = {"max_epipolar_error": threshold, "success_prob": confidence, "max_iterations": max_iters,
+              "min_iterations": min(1000, max_iters), "seed": seed, "progressive_sampling": prosac,
+              "max_prosac_iterations": max_iters}
+    pose, info = poselib.estimate_relative_pose(x0n, x1n, camera, camera, ransac, {})
+    t = np.asarray(pose.t, np.float64)
+    inliers = np.asarray(info["inliers"], bool)
+    if info["num_inliers"] < 5 or not np.isfinite(t).all() or np.linalg.norm(t) < 1e-12:
+        return None
+    return skew(t / np.linalg.norm(t)) @ np.asarray(pose.R, np.float64), inliers
 
 
 def eight_point_rows(x0: ArrayT, y0: ArrayT, x1: ArrayT, y1: ArrayT, xp: ModuleType = np) -> ArrayT:

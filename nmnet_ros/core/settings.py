@@ -15,8 +15,9 @@ Value = bool | int | float | str
 # Mirrors of registries that import torch (tested equal): the names a setting may take.
 DETECTOR_NAMES = ("hessian-affine", "hessian-affine-fast", "sift")
 PRECISION_NAMES = ("auto", "float32", "bfloat16")  # auto = bfloat16 where the CPU has it natively
-METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ransac", "magsac", "gms", "lpm", "nmnet+magsac",
-           "nmnet+ratio+magsac", "oracle")  # the correspondence selectors (core/selectors.py), as nmnet eval names them
+# the correspondence selectors (core/selectors.py), as nmnet eval names them
+METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ratio+poselib", "ransac", "magsac", "gms", "lpm",
+           "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac", "oracle")
 POSE_ESTIMATORS = {  # the node's pose_estimator names and the selector (nmnet eval's method) each runs
     "ratio_magsac": "nmnet+ratio+magsac", "magsac": "nmnet+magsac", "weighted8": "nmnet", "classic": "ratio+magsac"}
 
