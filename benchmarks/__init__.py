@@ -279,7 +279,7 @@ EXPERIMENTS: dict[str, Experiment] = {
     "validation": Experiment(
         "every selector on the validation split (pairs at gaps 1-10 of two scenes never trained on)",
         ("eval", *VALIDATION, "--gaps", "1-10", "--methods", "nmnet,ratio,magsac,ratio+magsac,nmnet+magsac,"
-         "nmnet+ratio+magsac,oracle", "--nmnet-precision", "float32", "--json", "{out}", "--plots", "{tmp}"),
+         "nmnet+ratio+magsac,ratio+poselib,nmnet+prosac,oracle", "--nmnet-precision", "float32", "--json", "{out}", "--plots", "{tmp}"),
         render_validation, needs_data=True),
     "hard-validation": Experiment(
         "the hard validation set: the validation scenes at frame gaps up to 30 and views up to 60 degrees apart",

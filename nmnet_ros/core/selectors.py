@@ -84,7 +84,8 @@ def _filtered(c: Correspondences, mask: np.ndarray) -> Selection:
 
 def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, polish: np.ndarray | None = None,
                prosac: bool = False) -> Selection:
-    """A robust fit on the kept matches, its pose polished on them (sigma = the inlier threshold).
+    """A robust fit on the kept matches, its pose polished on them (sigma = ``pose_threshold_px``, whichever the
+    estimator: the same polish for every pipeline).
 
     ``keep``: a boolean mask or indices (in the order PROSAC samples them, best first, with
     ``prosac``); ``polish``: other matches (mask or indices) to polish the pose over instead.
@@ -100,7 +101,7 @@ def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, pol
     pose = recover_pose(E, x0, x1, inl)
     if pose is not None:
         p0, p1 = (x0, x1) if polish is None else (c.x0[polish], c.x1[polish])
-        pose = refine_pose(pose, p0, p1, threshold, cfg["pose_refine_iterations"])
+        pose = refine_pose(pose, p0, p1, cfg["pose_threshold_px"] / c.focal, cfg["pose_refine_iterations"])
     mask[keep[inl]] = True
     candidates = np.zeros(len(c), bool)
     candidates[keep] = True
