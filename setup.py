@@ -33,6 +33,7 @@ setup(
         "mcap>=1.1,<2",
         "mcap-ros2-support>=0.5,<1",
         "pycolmap>=4.2,<5",  # nmnet label: reconstruction of unlabeled recordings
+        "poselib>=2.0.5,<3",  # PoseLib's robust relative pose (nmnet eval's ratio+poselib, nmnet+prosac)
         "ray>=2.40,<3",  # nmnet replay over many recordings
     ],
     extras_require={
