@@ -27,7 +27,7 @@ from .model_fast import FastNMNet, resolve_precision
 from .neighbors import mine_neighbors, warm_up
 from .settings import FRONTEND_DEFAULTS, METHODS
 
-POSELIB_THRESHOLD_PX = 1.0  # PoseLib's own default; on the hard validation set 0.5 px lost 3 AUC@5 below 10 % inliers
+POSELIB_THRESHOLD_PX = 1.0  # PoseLib's own default; on the hard validation set 0.5 px lost 4 AUC@5 below 10 % inliers
 PROSAC_POOL_RATIO = 0.9  # nmnet+prosac's pool; at 0.8 (the classic pre-filter's) or 0.95 its gain there was gone
 
 DEFAULT_CONFIG: dict = {
