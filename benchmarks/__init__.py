@@ -70,13 +70,14 @@ METHOD_NAMES = {"nmnet+ratio+magsac": "NM-Net + ratio + MAGSAC++ (default)", "ra
 
 def render_validation(r: dict) -> str:
     """Every method on the validation split: classification (P/F) and pose (AUC, difference to the reference)."""
+    from nmnet_ros.tools.evaluate import auc_cell
+
     ref = r.get("reference")
     rows = [f"| method | P | F | AUC@5 (minus {ref}'s [95 %]) | AUC@10 | AUC@20 | median rot / dir (deg) |",
             "|---|---|---|---|---|---|---|"]
     for name, m in r["methods"].items():
-        d = r.get("auc5_vs_reference", {}).get(name)
-        diff = f" ({d['auc5']:+.1f} [{d['low']:+.1f}, {d['high']:+.1f}])" if d else ""
-        rows.append(f"| {METHOD_NAMES.get(name, name)} | {m['precision']:.1f} | {m['f1']:.1f} | {m['auc5']:.1f}{diff} | "
+        auc = auc_cell({**m, "vs_reference": r.get("auc5_vs_reference", {}).get(name)})
+        rows.append(f"| {METHOD_NAMES.get(name, name)} | {m['precision']:.1f} | {m['f1']:.1f} | {auc} | "
                     f"{m['auc10']:.1f} | {m['auc20']:.1f} | {m['median_rot_deg']:.2f} / {m['median_trans_deg']:.2f} |")
     pairs = next(iter(r["methods"].values()))["pairs"]
     return "\n".join(rows) + f"\n\n{pairs} pairs."
@@ -84,14 +85,11 @@ def render_validation(r: dict) -> str:
 
 def _hard_row(label: str, r: dict, method: str) -> str:
     """One method's row of the hard table: AUC@5 per inlier-ratio bin and over all pairs [difference, 95 %]."""
-    from nmnet_ros.tools.evaluate import BIN_ORDER
-
-    def cell(x: dict, d: dict | None) -> str:
-        return f"{x['auc5']:.1f}" + (f" ({d['auc5']:+.1f} [{d['low']:+.1f}, {d['high']:+.1f}])" if d else "")
+    from nmnet_ros.tools.evaluate import BIN_ORDER, auc_cell
 
     bins = sorted(r["bins"]["inlier_ratio"].items(), key=lambda kv: BIN_ORDER[kv[0]])
-    cells = [cell(b[method], b[method].get("vs_reference")) for _, b in bins]
-    cells.append(cell(r["methods"][method], r.get("auc5_vs_reference", {}).get(method)))
+    overall = {**r["methods"][method], "vs_reference": r.get("auc5_vs_reference", {}).get(method)}
+    cells = [auc_cell(b[method]) for _, b in bins] + [auc_cell(overall)]
     return f"| {label} | " + " | ".join(cells) + " |"
 
 

@@ -379,6 +379,8 @@ def test_prosac_samples_the_given_order_and_needs_magsac():
         estimate_essential(x0, x1, "ransac", 1e-3, prosac=True)
     with pytest.raises(ValueError, match="PROSAC sampling is a MAGSAC"):  # refused before the point count
         estimate_essential(x0[:5], x1[:5], "ransac", 1e-3, prosac=True)
+    with pytest.raises(ValueError, match="unknown robust estimator 'lmeds'"):
+        estimate_essential(x0[:5], x1[:5], "lmeds", 1e-3)
 
 
 def test_poselib_finds_the_pose_among_outliers_its_order_and_seed_reach_its_sampler():

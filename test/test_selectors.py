@@ -752,3 +752,7 @@ def test_poselib_methods_fit_their_pools_and_get_the_pose(pairs):
         errs["nmnet+prosac"].append(max(pose_error_deg(b.pose, p.R, p.t)))
     print({k: np.round(v, 2) for k, v in errs.items()})
     assert all(np.median(v) < 1.0 for v in errs.values())
+    lone = to_correspondences(pairs[0])
+    lone.mutual[:] = False  # no mutual match: an empty pool gives no pose, not an error
+    empty = prosac(lone, seed=0)
+    assert empty.pose is None and not empty.mask.any()

@@ -12,6 +12,7 @@ from typing import TypeVar
 
 import cv2
 import numpy as np
+import poselib
 
 ArrayT = TypeVar("ArrayT")  # a numpy array, or a torch tensor where gradients are needed
 
@@ -278,8 +279,6 @@ def estimate_essential(x0n: np.ndarray, x1n: np.ndarray, method: str = "magsac",
 def _poselib_essential(x0n: np.ndarray, x1n: np.ndarray, threshold: float, confidence: float, max_iters: int,
                        seed: int, prosac: bool) -> tuple[np.ndarray, np.ndarray] | None:
     """PoseLib's relative pose on normalised points (a unit pinhole camera), as (E, inlier mask)."""
-    import poselib  # only this estimator needs it
-
     camera = {"model": "PINHOLE", "width": 1, "height": 1, "params": [1.0, 1.0, 0.0, 0.0]}
     ransac = {"max_epipolar_error": threshold, "success_prob": confidence, "max_iterations": max_iters,
               "min_iterations": min(1000, max_iters), "seed": seed, "progressive_sampling": prosac,
