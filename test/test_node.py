@@ -190,7 +190,8 @@ def check_kitti_run(peer: Peer, seq: Sequence, frames, network: bool = True) -> 
     assert spin_until(peer.node, lambda: peer.count("frames_processed") == len(frames) and
                       peer.count("tracks_continued") == len(went_on), 5.0), (peer.diag_values(), len(went_on))
     if network:
-        assert scores.min() > 0.5 and scores.max() <= 1.0 and len(np.unique(scores)) > 1  # NM-Net probabilities, not a 0/1 mask
+        # NM-Net probabilities, not a 0/1 mask; the default samples the confident ones first, and most of its inliers are
+        assert scores.min() >= 0.0 and scores.max() <= 1.0 and len(np.unique(scores)) > 1 and np.median(scores) > 0.5
     else:
         assert np.all(scores == 1.0)  # no network: the published score is the selection itself
     return np.array(errs)
@@ -723,8 +724,9 @@ def test_parameters_change_while_running(ros, tmp_path):
             return send_frame(peer, seq, i, stamp)
 
         calibrated = frame(41, 2.0)
-        assert calibrated.min() < 0.95 and len(np.unique(calibrated)) > 1  # NM-Net probabilities from the calibrated cut
-        assert all(r.successful for r in set_params(peer, {"score_threshold": 0.95}))
+        assert calibrated.min() < 0.95 and len(np.unique(calibrated)) > 1  # NM-Net probabilities
+        # the default (prosac) orders by the scores; ratio_magsac cuts at score_threshold
+        assert all(r.successful for r in set_params(peer, {"pose_estimator": "ratio_magsac", "score_threshold": 0.95}))
         assert frame(42, 3.0).min() > 0.95
         assert all(r.successful for r in set_params(peer, {"pose_estimator": "classic"}))
         assert np.all(frame(43, 4.0) == 1.0)  # no network: the published score is the selection itself

@@ -121,16 +121,17 @@ def test_tracks_follow_points_through_kitti_frames_and_restart_with_new_ids():
 
 
 def test_matches_within_px_publishes_the_pose_fits_candidates_near_the_pose_for_longer_tracks():
-    """matches_within_px 0.5: every match MAGSAC++ was given that lies within 0.5 px of the final pose is published,
-    not only its inliers at pose_threshold_px (0.15 px): more matches and tracks seen in more frames, as consistent
-    with the ground truth; the pose, and the count the covariance rests on (its inliers), are as with 0."""
+    """matches_within_px 0.5 with ratio_magsac: every match MAGSAC++ was given that lies within 0.5 px of the final
+    pose is published, not only its inliers at pose_threshold_px (0.15 px): more matches and tracks seen in more
+    frames, as consistent with the ground truth; the pose, and the count the covariance rests on (its inliers), are
+    as with 0. With prosac (PoseLib's inliers within 1 px) and classic the same holds at 2 px and 0.5 px."""
     from nmnet_ros.core.geometry import essential_from_pose, sampson_distance
     from nmnet_ros.core.pipeline import Frontend
 
     seq = Sequence.load(data_dir("kitti-07"))
     runs = {}
     for px in (0.0, 0.5):
-        fe, results = Frontend(seq.camera, {"matches_within_px": px}), []
+        fe, results = Frontend(seq.camera, {"pose_estimator": "ratio_magsac", "matches_within_px": px}), []
         for i in range(8):
             results.append(fe.process(seq.image(i), float(i)))
         runs[px] = results[1:]
@@ -151,6 +152,10 @@ def test_matches_within_px_publishes_the_pose_fits_candidates_near_the_pose_for_
     classic.process(seq.image(0), 0.0)
     r = classic.process(seq.image(1), 1.0)
     assert r.num_selected > r.pose_matches and (r.scores[r.mask] == 1.0).all() and (r.scores[~r.mask] == 0.0).all()
+    inliers, near = (Frontend(seq.camera, {"pose_estimator": "prosac", "matches_within_px": px}) for px in (0.0, 2.0))
+    a, b = ([fe.process(seq.image(i), float(i)) for i in (0, 1)][1] for fe in (inliers, near))
+    assert a.status == b.status == "ok" and np.allclose(a.pose.R, b.pose.R) and np.allclose(a.pose.t, b.pose.t)
+    assert a.pose_matches == b.pose_matches == a.num_selected < b.num_selected and b.mask[a.mask].all()
 
 
 def test_a_streams_tracks_are_summed_up_by_length():

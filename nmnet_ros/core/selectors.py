@@ -5,10 +5,10 @@
 ``ransac``/``magsac``: robust essential-matrix fits on everything; ``ratio+magsac``: mutual NN +
 ratio test then MAGSAC++ (the strongest classic pipeline); ``nmnet+magsac``: MAGSAC++ on the
 network's selection; ``nmnet+ratio+magsac``: MAGSAC++ on the matches both NM-Net and mutual NN +
-ratio test keep (the front end's default; level with ``ratio+magsac`` on validation, see docs/evaluation.md); both
-NM-Net fits take ``ratio+magsac``'s pose where they keep fewer than ``fallback_min_inliers`` matches;
-``ratio+poselib``: the classic pre-filter then PoseLib; ``nmnet+prosac``: PoseLib sampling a wider pool in NM-Net's
-order (PROSAC); ``oracle``: ground-truth inliers + MAGSAC++ (the ceiling).
+ratio test keep; both NM-Net MAGSAC++ fits take ``ratio+magsac``'s pose where they keep fewer than
+``fallback_min_inliers`` matches; ``ratio+poselib``: the classic pre-filter then PoseLib; ``nmnet+prosac``: PoseLib
+sampling a wider pool in NM-Net's order (PROSAC), the front end's default (ahead of ``ratio+magsac`` on the validation
+split, level on the hard set: docs/evaluation.md); ``oracle``: ground-truth inliers + MAGSAC++ (the ceiling).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import cv2
 import numpy as np
@@ -176,6 +177,12 @@ def nmnet_magsac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Co
     return Selection(sel.mask, scores, sel.pose, sel.candidates)
 
 
+# the NM-Net methods that end in a robust fit: the fit, given ``nmnet_scores`` of the pair
+SCORED_FITS: dict[str, Callable[[tuple[np.ndarray, np.ndarray, np.ndarray], Correspondences, dict], Selection]] = {
+    "nmnet+magsac": nmnet_magsac_select, "nmnet+ratio+magsac": partial(nmnet_magsac_select, classic=True),
+    "nmnet+prosac": nmnet_prosac_select}
+
+
 def _remember_last(f: Callable[[Correspondences], tuple]) -> Callable[[Correspondences], tuple]:
     """``f`` remembering its result for the last correspondences it saw (reruns with other seeds reuse it)."""
     last: list = [None, None]
@@ -266,12 +273,9 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         model.config["k"] = cfg.get("k", model.config["k"])
         if model.config["neighbors"] == "compatibility":
             warm_up()  # the mining kernel's compile / cache load happens here, not on the first frame pair
-        if name in ("nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac"):
-            scored = _remember_last(lambda c: nmnet_scores(model, c, cfg))
-            if name == "nmnet+prosac":
-                return lambda c, seed=None: nmnet_prosac_select(scored(c), c, at(seed))
-            classic = name == "nmnet+ratio+magsac"
-            return lambda c, seed=None: nmnet_magsac_select(scored(c), c, at(seed), classic)
+        if name in SCORED_FITS:
+            scored, fit = _remember_last(lambda c: nmnet_scores(model, c, cfg)), SCORED_FITS[name]
+            return lambda c, seed=None: fit(scored(c), c, at(seed))
         return lambda c: nmnet_select(model, c, cfg)
     table: dict[str, Callable[..., Selection]] = {
         "ratio": lambda c: _filtered(c, c.ratio < cfg["ratio"]),

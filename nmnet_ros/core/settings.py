@@ -19,7 +19,8 @@ PRECISION_NAMES = ("auto", "float32", "bfloat16")  # auto = bfloat16 where the C
 METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ratio+poselib", "ransac", "magsac", "gms", "lpm",
            "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac", "oracle")
 POSE_ESTIMATORS = {  # the node's pose_estimator names and the selector (nmnet eval's method) each runs
-    "ratio_magsac": "nmnet+ratio+magsac", "magsac": "nmnet+magsac", "weighted8": "nmnet", "classic": "ratio+magsac"}
+    "prosac": "nmnet+prosac", "ratio_magsac": "nmnet+ratio+magsac", "magsac": "nmnet+magsac", "weighted8": "nmnet",
+    "classic": "ratio+magsac"}
 
 
 @dataclass(frozen=True)
@@ -76,13 +77,16 @@ SETTINGS: tuple[Setting, ...] = (
                     "bfloat16 (faster on CPUs with native bfloat16, the same decisions to rounding)"),
     Setting("matching", "nn", "putative matches: nn (paper), mutual, ratio (Lowe 0.8)", ("nn", "mutual", "ratio"),
             tools=("replay",)),
-    Setting("pose_estimator", "ratio_magsac", "how the pose is fitted", tuple(POSE_ESTIMATORS), tools=("replay",),
-            details="ratio_magsac: MAGSAC++ on the matches NM-Net and mutual NN + ratio 0.8 both keep; magsac: MAGSAC++ "
+    Setting("pose_estimator", "prosac", "how the pose is fitted", tuple(POSE_ESTIMATORS), tools=("replay",),
+            details="prosac: PoseLib's LO-RANSAC (1 px) sampling the mutual matches of ratio < 0.9 in NM-Net's order, "
+                    "the consensus counted over all of them; ratio_magsac: MAGSAC++ on the matches NM-Net and mutual "
+                    "NN + ratio 0.8 both keep; magsac: MAGSAC++ "
                     "on NM-Net's selection; weighted8: eight-point weighted by NM-Net scores (the paper's; no robust "
                     "fit, far less accurate); classic: mutual NN + ratio 0.8 + MAGSAC++ without the network"),
     Setting("pose_threshold_px", 0.15, "MAGSAC++ inlier threshold (px), chosen on training pairs", range=(0.05, 10.0),
-            tools=SELECTING, details="raise it for a poorly calibrated or rolling-shutter camera"),
-    Setting("pose_refine_iterations", 5, "Levenberg-Marquardt steps polishing the pose after MAGSAC++ (0 = off)",
+            tools=SELECTING, details="raise it for a poorly calibrated or rolling-shutter camera; also the pose "
+                                     "polish's scale; prosac's PoseLib fit keeps the matches within 1 px"),
+    Setting("pose_refine_iterations", 5, "Levenberg-Marquardt steps polishing the pose after the robust fit (0 = off)",
             range=(0, 50), tools=SELECTING, details="on the Cauchy-robust Sampson error"),
     Setting("fallback_min_inliers", 30, "when MAGSAC++ on NM-Net's selection keeps fewer matches, the pose is fitted "
             "on mutual NN + ratio 0.8's matches instead (0 = never)", range=(0, 100000), tools=SELECTING,
@@ -96,9 +100,9 @@ SETTINGS: tuple[Setting, ...] = (
             range=(0.0, 1000.0), tools=("replay",),
             details="parallax: the flow the rotation fitted alone does not explain; status no_motion, the rotation "
                     "alone with zero translation"),
-    Setting("matches_within_px", 0.0, "0: ~/matches carries the pose's MAGSAC++ inliers; > 0: every match MAGSAC++ "
+    Setting("matches_within_px", 0.0, "0: ~/matches carries the pose fit's inliers; > 0: every match the fit "
             "was given within this Sampson distance (px) of the pose", range=(0.0, 100.0), tools=("replay",),
-            details="for a back end that wants more matches and longer tracks (0.5: 1.5x the matches)"),
+            details="for a back end that wants more matches and longer tracks (ratio_magsac at 0.5: 1.5x the matches)"),
     Setting("time_jump_s", 1.0, "a frame stamped this many seconds before the previous one restarts the chain",
             range=(0.0, 86400.0), tools=("replay",), details="a bag played in a loop, a clock reset"),
     Setting("match_gemm", "auto", "descriptor similarities: auto (bfloat16 screen + float32 re-check where native), "

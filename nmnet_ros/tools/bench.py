@@ -64,14 +64,18 @@ def bench_neighbors(sizes: tuple[int, ...] = (1000, 2000), repeat: int = 20) -> 
     return res
 
 
-def _stages(det, model, magsac, cam, imgs: list[np.ndarray], jpegs: list[bytes]) -> tuple[dict, list[float], list]:
+def _stages(det, model, cam, imgs: list[np.ndarray], jpegs: list[bytes]) -> tuple[dict, list[float], list]:
     """Serial per-stage timings (ms) of one configuration over consecutive frames, and each frame's features."""
     import cv2
 
     from ..core.bf16 import native_bf16
     from ..core.matching import match_descriptors
     from ..core.neighbors import compatibility_neighbors
-    from ..core.selectors import DEFAULT_CONFIG, Correspondences, classic_mask, nmnet_scores
+    from ..core.pipeline import selector_name
+    from ..core.selectors import DEFAULT_CONFIG, SCORED_FITS, Correspondences, nmnet_scores
+    from ..core.settings import FRONTEND_DEFAULTS
+
+    fit = SCORED_FITS[selector_name(FRONTEND_DEFAULTS["pose_estimator"])]  # the default pose path after NM-Net
 
     h, w = imgs[0].shape[:2]
     screen = native_bf16()  # matching screens in bfloat16 here: time the float32 GEMM beside it
@@ -93,10 +97,9 @@ def _stages(det, model, magsac, cam, imgs: list[np.ndarray], jpegs: list[bytes])
             nb = compatibility_neighbors(k0, a0, k1, a1)
             t3 = time.perf_counter()
             c = Correspondences(k0, k1, a0, a1, cam.normalize(k0), cam.normalize(k1), m.ratio, m.mutual, cam.focal, (w, h), (w, h))
-            # the default pose path (nmnet+ratio+magsac): calibrated NM-Net cut, mutual NN, ratio 0.8, MAGSAC++
-            keep = nmnet_scores(model, c, DEFAULT_CONFIG, nb)[2] & classic_mask(c)
+            scored = nmnet_scores(model, c, DEFAULT_CONFIG, nb)
             t4 = time.perf_counter()
-            magsac(Correspondences(*(x[keep] for x in (k0, k1, a0, a1, c.x0, c.x1, m.ratio, m.mutual)), cam.focal, (w, h), (w, h)))
+            fit(scored, c, DEFAULT_CONFIG)
             t5 = time.perf_counter()
             for k, v in zip(("decode", "detect", "match", "neighbors", "nmnet", "pose", "total"),
                             (t0 - t, t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, t5 - t), strict=True):
@@ -169,7 +172,6 @@ def bench_pipeline(frames: list[np.ndarray], camera: Camera, sizes: tuple[int, .
     ref_model = load_model()
     model = FastNMNet(ref_model, resolve_precision("auto"))  # what the node runs on this CPU
     model32 = FastNMNet(ref_model) if model.dtype != torch.float32 else None  # and the exact network beside it
-    magsac = build("magsac")
     ratio_magsac = build("ratio+magsac")
     for label, shape in (("640x480", (640, 480)), ("native", None)):
         imgs = [cv2.resize(f, shape, interpolation=cv2.INTER_AREA) if shape else f for f in frames]
@@ -177,7 +179,7 @@ def bench_pipeline(frames: list[np.ndarray], camera: Camera, sizes: tuple[int, .
         h, w = imgs[0].shape[:2]
         cam = camera.resized(w, h, (frames[0].shape[1], frames[0].shape[0]))
         for n in sizes:
-            st, feats = _stages(FastHessianAffine({"max_keypoints": n}), model, magsac, cam, imgs, jpegs)
+            st, feats = _stages(FastHessianAffine({"max_keypoints": n}), model, cam, imgs, jpegs)
             row: dict = {k: {"median": float(np.median(v)), "p90": float(np.percentile(v, 90))} for k, v in st.items()}
             row["serial_hz"] = 1000.0 / row["total"]["median"]
             # the node's schedule, and as same-process baselines matching always beside NM-Net (before
