@@ -68,6 +68,7 @@ METHOD_NAMES = {"nmnet+ratio+magsac": "NM-Net + ratio + MAGSAC++", "ratio+magsac
                 "nmnet+magsac": "NM-Net + MAGSAC++", "magsac": "MAGSAC++ alone", "oracle": "oracle (true inliers + MAGSAC++)",
                 "nmnet": "NM-Net alone (weighted eight-point)", "ratio": "ratio test alone",
                 "ratio+poselib": "classic with PoseLib: ratio + PoseLib",
+                "ratio+prosac": "classic with PoseLib PROSAC on mutual matches of ratio < 0.9, in ratio order",
                 "nmnet+prosac": "NM-Net's order + PoseLib PROSAC on mutual matches of ratio < 0.9"}
 
 
@@ -285,12 +286,13 @@ EXPERIMENTS: dict[str, Experiment] = {
     "validation": Experiment(
         "every selector on the validation split (pairs at gaps 1-10 of two scenes never trained on)",
         ("eval", *VALIDATION, "--gaps", "1-10", "--methods", "nmnet,ratio,magsac,ratio+magsac,nmnet+magsac,"
-         "nmnet+ratio+magsac,ratio+poselib,nmnet+prosac,oracle", "--nmnet-precision", "float32", "--json", "{out}", "--plots", "{tmp}"),
+         "nmnet+ratio+magsac,ratio+poselib,ratio+prosac,nmnet+prosac,oracle", "--nmnet-precision", "float32", "--json", "{out}",
+         "--plots", "{tmp}"),
         render_validation, needs_data=True),
     "hard-validation": Experiment(
         "the hard validation set: the validation scenes at frame gaps up to 30 and views up to 60 degrees apart",
         ("eval", *VALIDATION, "--gaps", "1-30", "--max-view-angle", "60", "--methods",
-         "nmnet,ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,ratio+poselib,nmnet+prosac,oracle", "--seeds", "3",
+         "nmnet,ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,ratio+poselib,ratio+prosac,nmnet+prosac,oracle", "--seeds", "3",
          "--nmnet-precision", "float32",
          "--json", "{out}", "--plots", "{tmp}"), None, needs_data=True),
     "hard-validation-no-fallback": Experiment(

@@ -736,23 +736,34 @@ def test_a_learned_fit_with_too_few_inliers_falls_back_to_the_classic_pipelines_
 
 
 def test_poselib_methods_fit_their_pools_and_get_the_pose(pairs):
-    """ratio+poselib fits the classic pre-filter's matches; nmnet+prosac samples the wider pool (mutual, ratio < 0.9)
-    in NM-Net's order and keeps only matches of it; both get the pose of validation pairs."""
+    """ratio+poselib fits the classic pre-filter's matches; nmnet+prosac and ratio+prosac sample the wider pool
+    (mutual, ratio < 0.9), in NM-Net's and in the ratio's order, and keep only matches of it; all get the pose of
+    validation pairs. PoseLib keeps the matches within 1 px, or within pose_threshold_px above it."""
+    from nmnet_ros.core.geometry import sampson_px
     from nmnet_ros.core.selectors import PROSAC_POOL_RATIO
 
-    classic, prosac = build("ratio+poselib"), build("nmnet+prosac")
-    errs = {"ratio+poselib": [], "nmnet+prosac": []}
+    names = ("ratio+poselib", "nmnet+prosac", "ratio+prosac")
+    select = {name: build(name) for name in names}
+    loose = build("nmnet+prosac", {"pose_threshold_px": 3.0, "pose_refine_iterations": 0})
+    tight = build("nmnet+prosac", {"pose_threshold_px": 0.15, "pose_refine_iterations": 0})
+    errs: dict[str, list[float]] = {name: [] for name in names}
     for p in pairs:
         c = to_correspondences(p)
-        a, b = classic(c), prosac(c, seed=0)
+        a, b, r = (select[name](c, seed=0) for name in names)
         assert not np.any(a.mask & ~classic_mask(c)) and a.mask.sum() >= 8
         pool = c.mutual & (c.ratio < PROSAC_POOL_RATIO)
-        assert np.array_equal(b.candidates, pool) and not np.any(b.mask & ~pool) and b.scores is not None
-        errs["ratio+poselib"].append(max(pose_error_deg(a.pose, p.R, p.t)))
-        errs["nmnet+prosac"].append(max(pose_error_deg(b.pose, p.R, p.t)))
+        for sel in (b, r):
+            assert np.array_equal(sel.candidates, pool) and not np.any(sel.mask & ~pool)
+        assert b.scores is not None and r.scores is None
+        for name, sel in zip(names, (a, b, r), strict=True):
+            errs[name].append(max(pose_error_deg(sel.pose, p.R, p.t)))
+        wide, narrow = loose(c, seed=0), tight(c, seed=0)
+        assert narrow.mask.sum() < wide.mask.sum()  # 3 px widens PoseLib's bound; 0.15 px keeps its 1 px
+        assert np.percentile(sampson_px(narrow.pose, c.x0[narrow.mask], c.x1[narrow.mask], c.focal), 99) < 1.0 + 1e-6
     print({k: np.round(v, 2) for k, v in errs.items()})
     assert all(np.median(v) < 1.0 for v in errs.values())
     lone = to_correspondences(pairs[0])
     lone.mutual[:] = False  # no mutual match: an empty pool gives no pose, not an error
-    empty = prosac(lone, seed=0)
-    assert empty.pose is None and not empty.mask.any()
+    for name in ("nmnet+prosac", "ratio+prosac"):
+        empty = select[name](lone, seed=0)
+        assert empty.pose is None and not empty.mask.any()

@@ -6,9 +6,10 @@
 ratio test then MAGSAC++ (the strongest classic pipeline); ``nmnet+magsac``: MAGSAC++ on the
 network's selection; ``nmnet+ratio+magsac``: MAGSAC++ on the matches both NM-Net and mutual NN +
 ratio test keep; both NM-Net MAGSAC++ fits take ``ratio+magsac``'s pose where they keep fewer than
-``fallback_min_inliers`` matches; ``ratio+poselib``: the classic pre-filter then PoseLib; ``nmnet+prosac``: PoseLib
-sampling a wider pool in NM-Net's order (PROSAC), the front end's default (ahead of ``ratio+magsac`` on the validation
-split, level on the hard set: docs/evaluation.md); ``oracle``: ground-truth inliers + MAGSAC++ (the ceiling).
+``fallback_min_inliers`` matches; ``ratio+poselib``: the classic pre-filter then PoseLib; ``ratio+prosac``: PoseLib
+sampling a wider pool in the ratio test's order (PROSAC, no network); ``nmnet+prosac``: the same in NM-Net's order,
+the front end's default (level with ``ratio+prosac``, see docs/evaluation.md); ``oracle``: ground-truth inliers +
+MAGSAC++ (the ceiling).
 """
 
 from __future__ import annotations
@@ -28,7 +29,9 @@ from .model_fast import FastNMNet, resolve_precision
 from .neighbors import mine_neighbors, warm_up
 from .settings import FRONTEND_DEFAULTS, METHODS
 
-POSELIB_THRESHOLD_PX = 1.0  # PoseLib's own default; on the hard validation set 0.5 px lost 4 AUC@5 below 10 % inliers
+# PoseLib's threshold (its own default), or pose_threshold_px above it; on the hard validation set 0.5 px lost 4 AUC@5
+# below 10 % inliers
+POSELIB_THRESHOLD_PX = 1.0
 PROSAC_POOL_RATIO = 0.9  # nmnet+prosac's pool; at 0.8 (the classic pre-filter's) or 0.95 its gain there was gone
 
 DEFAULT_CONFIG: dict = {
@@ -93,7 +96,8 @@ def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, pol
     """
     keep = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep, np.intp)
     mask = np.zeros(len(c), bool)
-    threshold = (POSELIB_THRESHOLD_PX if method == "poselib" else cfg["pose_threshold_px"]) / c.focal
+    px = cfg["pose_threshold_px"]
+    threshold = (max(POSELIB_THRESHOLD_PX, px) if method == "poselib" else px) / c.focal  # PoseLib: a hard bound
     x0, x1 = c.x0[keep], c.x1[keep]
     est = estimate_essential(x0, x1, method, threshold, max_iters=cfg["max_iters"], seed=cfg["seed"], prosac=prosac)
     if est is None:
@@ -114,16 +118,18 @@ def classic_mask(c: Correspondences, cfg: dict = DEFAULT_CONFIG) -> np.ndarray:
     return c.mutual & (c.ratio < cfg["ratio"])
 
 
-def nmnet_prosac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Correspondences, cfg: dict) -> Selection:
-    """PoseLib with PROSAC over the mutual matches of ratio < ``PROSAC_POOL_RATIO``, sampled in NM-Net's order.
-
-    The network does not cut: it orders. The samples come from its most confident matches first,
-    while the consensus is counted over a pool wider than the classic pre-filter's, where the
-    inliers of a hard pair (few, ambiguous) still are.
-    """
-    logits, scores, _ = scored
+def prosac_fit(c: Correspondences, order: np.ndarray, cfg: dict) -> Selection:
+    """PoseLib with PROSAC over the mutual matches of ratio < ``PROSAC_POOL_RATIO``, sampled in ``order`` (higher
+    first): the samples come from the best-ranked matches first, while the consensus is counted over a pool wider
+    than the classic pre-filter's, where the inliers of a hard pair (few, ambiguous) still are."""
     pool = np.flatnonzero(c.mutual & (c.ratio < PROSAC_POOL_RATIO))
-    sel = robust_fit(c, pool[np.argsort(-logits[pool], kind="stable")], "poselib", cfg, prosac=True)
+    return robust_fit(c, pool[np.argsort(-order[pool], kind="stable")], "poselib", cfg, prosac=True)
+
+
+def nmnet_prosac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Correspondences, cfg: dict) -> Selection:
+    """``prosac_fit`` in NM-Net's order: the network does not cut, it orders."""
+    logits, scores, _ = scored
+    sel = prosac_fit(c, logits, cfg)
     return Selection(sel.mask, scores, sel.pose, sel.candidates)
 
 
@@ -283,6 +289,7 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         "magsac": lambda c, seed=None: robust_fit(c, np.ones(len(c), bool), "magsac", at(seed)),
         "ratio+magsac": lambda c, seed=None: robust_fit(c, classic_mask(c, cfg), "magsac", at(seed)),
         "ratio+poselib": lambda c, seed=None: robust_fit(c, classic_mask(c, cfg), "poselib", at(seed)),
+        "ratio+prosac": lambda c, seed=None: prosac_fit(c, -c.ratio, at(seed)),
         "gms": lambda c: _filtered(c, gms_mask(c)),
         "lpm": lambda c: _filtered(c, lpm_mask(c)),
         "oracle": lambda c, seed=None: robust_fit(c, c.labels if c.labels is not None else np.zeros(len(c), bool), "magsac",
@@ -293,6 +300,6 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
     return table[name]
 
 
-ROBUST = ("ratio+magsac", "ratio+poselib", "ransac", "magsac", "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac",
+ROBUST = ("ratio+magsac", "ratio+poselib", "ratio+prosac", "ransac", "magsac", "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac",
           "oracle")  # end in a seeded robust fit
 NETWORK = ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac")  # run NM-Net

@@ -16,7 +16,7 @@ Value = bool | int | float | str
 DETECTOR_NAMES = ("hessian-affine", "hessian-affine-fast", "sift")
 PRECISION_NAMES = ("auto", "float32", "bfloat16")  # auto = bfloat16 where the CPU has it natively
 # the correspondence selectors (core/selectors.py), as nmnet eval names them
-METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ratio+poselib", "ransac", "magsac", "gms", "lpm",
+METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ratio+poselib", "ratio+prosac", "ransac", "magsac", "gms", "lpm",
            "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac", "oracle")
 POSE_ESTIMATORS = {  # the node's pose_estimator names and the selector (nmnet eval's method) each runs
     "prosac": "nmnet+prosac", "ratio_magsac": "nmnet+ratio+magsac", "magsac": "nmnet+magsac", "weighted8": "nmnet",
@@ -85,7 +85,7 @@ SETTINGS: tuple[Setting, ...] = (
                     "fit, far less accurate); classic: mutual NN + ratio 0.8 + MAGSAC++ without the network"),
     Setting("pose_threshold_px", 0.15, "MAGSAC++ inlier threshold (px), chosen on training pairs", range=(0.05, 10.0),
             tools=SELECTING, details="raise it for a poorly calibrated or rolling-shutter camera; also the pose "
-                                     "polish's scale; prosac's PoseLib fit keeps the matches within 1 px"),
+                                     "polish's scale; prosac's PoseLib fit keeps the matches within 1 px, or within it above 1 px"),
     Setting("pose_refine_iterations", 5, "Levenberg-Marquardt steps polishing the pose after the robust fit (0 = off)",
             range=(0, 50), tools=SELECTING, details="on the Cauchy-robust Sampson error"),
     Setting("fallback_min_inliers", 30, "when MAGSAC++ on NM-Net's selection keeps fewer matches, the pose is fitted "
