@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from nmnet_ros.core.settings import FRONTEND_DEFAULTS, POSE_ESTIMATORS
+from nmnet_ros.core.settings import DEFAULT_METHOD as DEFAULT
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -63,7 +63,6 @@ def render_sample_bag(r: dict) -> str:
     return "\n".join(rows)
 
 
-DEFAULT = POSE_ESTIMATORS[str(FRONTEND_DEFAULTS["pose_estimator"])]  # the front end's default, as nmnet eval names it
 METHOD_NAMES = {"nmnet+ratio+magsac": "NM-Net + ratio + MAGSAC++", "ratio+magsac": "classic: ratio + MAGSAC++",
                 "nmnet+magsac": "NM-Net + MAGSAC++", "magsac": "MAGSAC++ alone", "oracle": "oracle (true inliers + MAGSAC++)",
                 "nmnet": "NM-Net alone (weighted eight-point)", "ratio": "ratio test alone",

@@ -141,6 +141,7 @@ SETTINGS: tuple[Setting, ...] = (
 BY_NAME: dict[str, Setting] = {s.name: s for s in SETTINGS}
 NODE: tuple[Setting, ...] = tuple(s for s in SETTINGS if s.node)
 FRONTEND_DEFAULTS: dict[str, Value] = {s.name: s.default for s in SETTINGS if s.frontend}
+DEFAULT_METHOD = POSE_ESTIMATORS[str(FRONTEND_DEFAULTS["pose_estimator"])]  # the default's selector, as eval names it
 
 _TYPE_NAMES = {bool: "a bool", int: "an integer", float: "a float", str: "a string"}
 

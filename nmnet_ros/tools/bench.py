@@ -71,11 +71,10 @@ def _stages(det, model, cam, imgs: list[np.ndarray], jpegs: list[bytes]) -> tupl
     from ..core.bf16 import native_bf16
     from ..core.matching import match_descriptors
     from ..core.neighbors import compatibility_neighbors
-    from ..core.pipeline import selector_name
     from ..core.selectors import DEFAULT_CONFIG, SCORED_FITS, Correspondences, nmnet_scores
-    from ..core.settings import FRONTEND_DEFAULTS
+    from ..core.settings import DEFAULT_METHOD
 
-    fit = SCORED_FITS[selector_name(FRONTEND_DEFAULTS["pose_estimator"])]  # the default pose path after NM-Net
+    fit = SCORED_FITS[DEFAULT_METHOD]  # the default pose path after NM-Net
 
     h, w = imgs[0].shape[:2]
     screen = native_bf16()  # matching screens in bfloat16 here: time the float32 GEMM beside it
