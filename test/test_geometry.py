@@ -9,11 +9,13 @@ from nmnet_ros.core.geometry import (
     CameraError,
     essential_from_pose,
     estimate_essential,
+    estimate_pose,
     fit_rotation,
     pose_auc,
     pose_error_deg,
     recover_pose,
     refine_pose,
+    robust_threshold,
     rotation_error_deg,
     sampson_distance,
     skew,
@@ -399,6 +401,26 @@ def test_poselib_finds_the_pose_among_outliers_its_order_and_seed_reach_its_samp
     runs = [estimate_essential(x0, x1, "poselib", 1e-3, max_iters=30, seed=s) for s in range(4)]
     again = estimate_essential(x0, x1, "poselib", 1e-3, max_iters=30, seed=2)
     assert np.array_equal(again[1], runs[2][1]) and len({r[1].tobytes() for r in runs}) > 1
+
+
+def test_estimate_pose_takes_poselibs_pose_as_recover_pose_would_decompose_its_e():
+    """PoseLib's own R, t (no second decomposition) is the pose recover_pose finds in its E; the others' E goes
+    through recover_pose; fewer than 8 points or no model: None. PoseLib's threshold is a bound of at least 1 px."""
+    x0, x1 = _noisy_with_outliers(100, 300, 5e-4)
+    _, _, R, t = synthetic(400, seed=3)
+    for method in ("poselib", "magsac"):
+        pose, mask = estimate_pose(x0, x1, method, 1e-3)
+        E, same = estimate_essential(x0, x1, method, 1e-3)
+        assert np.array_equal(mask, same)
+        again = recover_pose(E, x0, x1, mask)
+        assert rotation_error_deg(pose.R, again.R) < 1e-6 and translation_error_deg(pose.t, again.t) < 1e-6
+        assert pose.t.shape == (3,) and abs(np.linalg.norm(pose.t) - 1) < 1e-12
+    assert max(pose_error_deg(estimate_pose(x0, x1, "poselib", 1e-3)[0], R, t)) < 0.5
+    assert estimate_pose(x0[:7], x1[:7], "poselib") is None
+    with pytest.raises(ValueError, match="PROSAC"):
+        estimate_pose(x0[:5], x1[:5], "ransac", prosac=True)
+    assert robust_threshold("poselib", 0.5, 500.0) == 1.0 / 500 and robust_threshold("poselib", 2.0, 500.0) == 2.0 / 500
+    assert robust_threshold("magsac", 0.5, 500.0) == 0.5 / 500
 
 
 def test_sampson_distance_is_zero_on_the_true_model_and_grows_off_it():

@@ -23,15 +23,12 @@ import cv2
 import numpy as np
 import torch
 
-from .geometry import PoseEstimate, estimate_essential, recover_pose, refine_pose, weighted_eight_point
+from .geometry import PoseEstimate, estimate_pose, recover_pose, refine_pose, robust_threshold, weighted_eight_point
 from .model import NMNet, load_model, network_input
 from .model_fast import FastNMNet, resolve_precision
 from .neighbors import mine_neighbors, warm_up
 from .settings import FRONTEND_DEFAULTS, METHODS
 
-# PoseLib's threshold (its own default), or pose_threshold_px above it; on the hard validation set 0.5 px lost 4 AUC@5
-# below 10 % inliers
-POSELIB_THRESHOLD_PX = 1.0
 PROSAC_POOL_RATIO = 0.9  # nmnet+prosac's pool; at 0.8 (the classic pre-filter's) or 0.95 its gain there was gone
 
 DEFAULT_CONFIG: dict = {
@@ -96,14 +93,12 @@ def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, pol
     """
     keep = np.flatnonzero(keep) if np.asarray(keep).dtype == bool else np.asarray(keep, np.intp)
     mask = np.zeros(len(c), bool)
-    px = cfg["pose_threshold_px"]
-    threshold = (max(POSELIB_THRESHOLD_PX, px) if method == "poselib" else px) / c.focal  # PoseLib: a hard bound
+    threshold = robust_threshold(method, cfg["pose_threshold_px"], c.focal)
     x0, x1 = c.x0[keep], c.x1[keep]
-    est = estimate_essential(x0, x1, method, threshold, max_iters=cfg["max_iters"], seed=cfg["seed"], prosac=prosac)
+    est = estimate_pose(x0, x1, method, threshold, max_iters=cfg["max_iters"], seed=cfg["seed"], prosac=prosac)
     if est is None:
         return Selection(mask, None, None)
-    E, inl = est
-    pose = recover_pose(E, x0, x1, inl)
+    pose, inl = est
     if pose is not None:
         p0, p1 = (x0, x1) if polish is None else (c.x0[polish], c.x1[polish])
         pose = refine_pose(pose, p0, p1, cfg["pose_threshold_px"] / c.focal, cfg["pose_refine_iterations"])
