@@ -738,7 +738,8 @@ def test_a_learned_fit_with_too_few_inliers_falls_back_to_the_classic_pipelines_
 def test_poselib_methods_fit_their_pools_and_get_the_pose(pairs):
     """ratio+poselib fits the classic pre-filter's matches; nmnet+prosac and ratio+prosac sample the wider pool
     (mutual, ratio < 0.9), in NM-Net's and in the ratio's order, and keep only matches of it; all get the pose of
-    validation pairs. PoseLib keeps the matches within 1 px, or within pose_threshold_px above it."""
+    validation pairs. PoseLib keeps the matches within 1 px, or within pose_threshold_px above it, and its pose is
+    its own (no polish after it: pose_refine_iterations changes nothing)."""
     from nmnet_ros.core.geometry import sampson_px
     from nmnet_ros.core.selectors import PROSAC_POOL_RATIO
 
@@ -746,6 +747,7 @@ def test_poselib_methods_fit_their_pools_and_get_the_pose(pairs):
     select = {name: build(name) for name in names}
     loose = build("nmnet+prosac", {"pose_threshold_px": 3.0, "pose_refine_iterations": 0})
     tight = build("nmnet+prosac", {"pose_threshold_px": 0.15, "pose_refine_iterations": 0})
+    unpolished = build("ratio+prosac", {"pose_refine_iterations": 0})
     errs: dict[str, list[float]] = {name: [] for name in names}
     for p in pairs:
         c = to_correspondences(p)
@@ -755,6 +757,7 @@ def test_poselib_methods_fit_their_pools_and_get_the_pose(pairs):
         for sel in (b, r):
             assert np.array_equal(sel.candidates, pool) and not np.any(sel.mask & ~pool)
         assert b.scores is not None and r.scores is None
+        assert np.array_equal(unpolished(c, seed=0).pose.R, r.pose.R)
         for name, sel in zip(names, (a, b, r), strict=True):
             errs[name].append(max(pose_error_deg(sel.pose, p.R, p.t)))
         wide, narrow = loose(c, seed=0), tight(c, seed=0)

@@ -85,8 +85,8 @@ def _filtered(c: Correspondences, mask: np.ndarray) -> Selection:
 
 def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, polish: np.ndarray | None = None,
                prosac: bool = False) -> Selection:
-    """A robust fit on the kept matches, its pose polished on them (sigma = ``pose_threshold_px``, whichever the
-    estimator: the same polish for every pipeline).
+    """A robust fit on the kept matches; MAGSAC++'s and RANSAC's pose polished on them (sigma =
+    ``pose_threshold_px``). PoseLib refines its own pose: a polish after it lost 0.1-0.2 AUC@5 (validation, hard set).
 
     ``keep``: a boolean mask or indices (in the order PROSAC samples them, best first, with
     ``prosac``); ``polish``: other matches (mask or indices) to polish the pose over instead.
@@ -99,7 +99,7 @@ def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, pol
     if est is None:
         return Selection(mask, None, None)
     pose, inl = est
-    if pose is not None:
+    if pose is not None and method != "poselib":
         p0, p1 = (x0, x1) if polish is None else (c.x0[polish], c.x1[polish])
         pose = refine_pose(pose, p0, p1, cfg["pose_threshold_px"] / c.focal, cfg["pose_refine_iterations"])
     mask[keep[inl]] = True

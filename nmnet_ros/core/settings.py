@@ -86,8 +86,9 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("pose_threshold_px", 0.15, "MAGSAC++ inlier threshold (px), chosen on training pairs", range=(0.05, 10.0),
             tools=SELECTING, details="raise it for a poorly calibrated or rolling-shutter camera; also the pose "
                                      "polish's scale; prosac's PoseLib fit keeps the matches within 1 px, or within it above 1 px"),
-    Setting("pose_refine_iterations", 5, "Levenberg-Marquardt steps polishing the pose after the robust fit (0 = off)",
-            range=(0, 50), tools=SELECTING, details="on the Cauchy-robust Sampson error"),
+    Setting("pose_refine_iterations", 5, "Levenberg-Marquardt steps polishing the pose after MAGSAC++ (0 = off)",
+            range=(0, 50), tools=SELECTING, details="on the Cauchy-robust Sampson error; prosac's PoseLib fit "
+                                                   "refines its own pose"),
     Setting("fallback_min_inliers", 30, "when MAGSAC++ on NM-Net's selection keeps fewer matches, the pose is fitted "
             "on mutual NN + ratio 0.8's matches instead (0 = never)", range=(0, 100000), tools=SELECTING,
             details="the pairs NM-Net leaves too little of (few inliers, wide baselines), where the classic "
