@@ -410,13 +410,16 @@ def test_estimate_pose_takes_poselibs_pose_as_recover_pose_would_decompose_its_e
     _, _, R, t = synthetic(400, seed=3)
     for method in ("poselib", "magsac"):
         pose, mask = estimate_pose(x0, x1, method, 1e-3)
-        E, same = estimate_essential(x0, x1, method, 1e-3)
+        _, same = estimate_essential(x0, x1, method, 1e-3)
         assert np.array_equal(mask, same)
-        again = recover_pose(E, x0, x1, mask)
-        assert rotation_error_deg(pose.R, again.R) < 1e-6 and translation_error_deg(pose.t, again.t) < 1e-6
         assert pose.t.shape == (3,) and abs(np.linalg.norm(pose.t) - 1) < 1e-12
-    assert max(pose_error_deg(estimate_pose(x0, x1, "poselib", 1e-3)[0], R, t)) < 0.5
+    pose, mask = estimate_pose(x0, x1, "poselib", 1e-3)
+    again = recover_pose(estimate_essential(x0, x1, "poselib", 1e-3)[0], x0, x1, mask)  # PoseLib's pose, its E's
+    assert rotation_error_deg(pose.R, again.R) < 1e-6 and translation_error_deg(pose.t, again.t) < 1e-6
+    assert max(pose_error_deg(pose, R, t)) < 0.5
     assert estimate_pose(x0[:7], x1[:7], "poselib") is None
+    with pytest.raises(ValueError, match="unknown robust estimator 'lmeds'"):
+        estimate_pose(x0, x1, "lmeds")
     with pytest.raises(ValueError, match="PROSAC"):
         estimate_pose(x0[:5], x1[:5], "ransac", prosac=True)
     assert robust_threshold("poselib", 0.5, 500.0) == 1.0 / 500 and robust_threshold("poselib", 2.0, 500.0) == 2.0 / 500

@@ -23,7 +23,15 @@ import cv2
 import numpy as np
 import torch
 
-from .geometry import PoseEstimate, estimate_pose, recover_pose, refine_pose, robust_threshold, weighted_eight_point
+from .geometry import (
+    ROBUST_ESTIMATORS,
+    PoseEstimate,
+    estimate_pose,
+    recover_pose,
+    refine_pose,
+    robust_threshold,
+    weighted_eight_point,
+)
 from .model import NMNet, load_model, network_input
 from .model_fast import FastNMNet, resolve_precision
 from .neighbors import mine_neighbors, warm_up
@@ -85,8 +93,8 @@ def _filtered(c: Correspondences, mask: np.ndarray) -> Selection:
 
 def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, polish: np.ndarray | None = None,
                prosac: bool = False) -> Selection:
-    """A robust fit on the kept matches; MAGSAC++'s and RANSAC's pose polished on them (sigma =
-    ``pose_threshold_px``). PoseLib refines its own pose: a polish after it lost 0.1-0.2 AUC@5 (validation, hard set).
+    """A robust fit on the kept matches, its pose polished on them (sigma = ``pose_threshold_px``) unless the
+    estimator refines its own (PoseLib: ``geometry.ROBUST_ESTIMATORS``).
 
     ``keep``: a boolean mask or indices (in the order PROSAC samples them, best first, with
     ``prosac``); ``polish``: other matches (mask or indices) to polish the pose over instead.
@@ -99,7 +107,7 @@ def robust_fit(c: Correspondences, keep: np.ndarray, method: str, cfg: dict, pol
     if est is None:
         return Selection(mask, None, None)
     pose, inl = est
-    if pose is not None and method != "poselib":
+    if pose is not None and not ROBUST_ESTIMATORS[method].refines_pose:
         p0, p1 = (x0, x1) if polish is None else (c.x0[polish], c.x1[polish])
         pose = refine_pose(pose, p0, p1, cfg["pose_threshold_px"] / c.focal, cfg["pose_refine_iterations"])
     mask[keep[inl]] = True
