@@ -68,7 +68,8 @@ METHOD_NAMES = {"nmnet+ratio+magsac": "NM-Net + ratio + MAGSAC++", "ratio+magsac
                 "nmnet": "NM-Net alone (weighted eight-point)", "ratio": "ratio test alone",
                 "ratio+poselib": "classic with PoseLib: ratio + PoseLib",
                 "ratio+prosac": "PoseLib PROSAC on mutual matches of ratio < 0.9 in ratio order",
-                "nmnet+prosac": "NM-Net's order + PoseLib PROSAC on mutual matches of ratio < 0.9"}
+                "nmnet+prosac": "NM-Net's order + PoseLib PROSAC on mutual matches of ratio < 0.9",
+                "oracle+prosac": "the true inliers' order + PoseLib PROSAC on mutual matches of ratio < 0.9"}
 
 
 def method_label(method: str) -> str:
@@ -293,7 +294,8 @@ EXPERIMENTS: dict[str, Experiment] = {
     "hard-validation": Experiment(
         "the hard validation set: the validation scenes at frame gaps up to 30 and views up to 60 degrees apart",
         ("eval", *VALIDATION, "--gaps", "1-30", "--max-view-angle", "60", "--methods",
-         "nmnet,ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,ratio+poselib,ratio+prosac,nmnet+prosac,oracle", "--seeds", "3",
+         "nmnet,ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,ratio+poselib,ratio+prosac,nmnet+prosac,oracle+prosac,oracle",
+         "--seeds", "3",
          "--nmnet-precision", "float32",
          "--json", "{out}", "--plots", "{tmp}"), None, needs_data=True),
     "hard-validation-no-fallback": Experiment(

@@ -929,10 +929,12 @@ def test_replay_options_that_set_node_parameters_are_checked_as_the_node_checks_
     assert summaries["0.5"]["auc5"] == summaries["0"]["auc5"]  # the same poses
 
 
-def test_the_oracle_selector_is_refused_by_replay_as_it_needs_ground_truth_labels(raw_bag, tmp_path):
-    """On a bag's frames the oracle has no labels: it selected nothing and reported every pose as 180 degrees off."""
-    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "o.mcap"), "--selector", "oracle")
-    assert r.returncode == 2 and "pose_estimator 'oracle' needs each match's ground-truth label" in r.stderr, r.stderr
+@pytest.mark.parametrize("name", ["oracle", "oracle+prosac"])
+def test_the_oracle_selectors_are_refused_by_replay_as_they_need_ground_truth_labels(raw_bag, tmp_path, name):
+    """On a bag's frames the oracles have no labels: the oracle selected nothing and reported every pose as 180
+    degrees off."""
+    r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "o.mcap"), "--selector", name)
+    assert r.returncode == 2 and f"pose_estimator '{name}' needs each match's ground-truth label" in r.stderr, r.stderr
     assert not (tmp_path / "o.mcap").exists()
 
 

@@ -766,7 +766,32 @@ def test_poselib_methods_fit_their_pools_and_get_the_pose(pairs):
     print({k: np.round(v, 2) for k, v in errs.items()})
     assert all(np.median(v) < 1.0 for v in errs.values())
     lone = to_correspondences(pairs[0])
-    lone.mutual[:] = False  # no mutual match: an empty pool gives no pose, not an error
+    lone.mutual = np.zeros(len(lone), bool)  # no mutual match: an empty pool gives no pose, not an error
     for name in ("nmnet+prosac", "ratio+prosac"):
         empty = select[name](lone, seed=0)
         assert empty.pose is None and not empty.mask.any()
+
+
+def test_oracle_prosac_samples_the_labelled_inliers_first(pairs):
+    """oracle+prosac is the default's fit in the ground truth's order. In a pool of 40 right matches among 600
+    wrong ones that the ratio ranks first (7 % inliers), the ratio's order misses the pose and the true order gets
+    it. Without labels (a bag's frames) its order is the ratio's."""
+    from nmnet_ros.core.selectors import PROSAC_POOL_RATIO
+
+    p = pairs[0]
+    c = to_correspondences(p)
+    rng = np.random.default_rng(0)
+    right = np.zeros(len(c), bool)
+    right[rng.choice(np.flatnonzero(c.mutual & (c.ratio < 0.8) & p.labels), 40, replace=False)] = True
+    wrong = np.zeros(len(c), bool)
+    wrong[rng.choice(np.flatnonzero(~p.labels), 600, replace=False)] = True
+    c.mutual, c.ratio = right | wrong, c.ratio.copy()  # the pool: these 640 matches (the fixture's arrays untouched)
+    c.ratio[wrong] = rng.uniform(0.1, 0.3, wrong.sum())  # the wrong ones look the most distinctive
+    assert np.array_equal(c.mutual & (c.ratio < PROSAC_POOL_RATIO), right | wrong)
+    missed = build("ratio+prosac")(c, seed=0)
+    found = build("oracle+prosac")(c, seed=0)
+    assert missed.pose is None or max(pose_error_deg(missed.pose, p.R, p.t)) > 10.0
+    assert max(pose_error_deg(found.pose, p.R, p.t)) < 5.0 and not np.any(found.mask & ~(right | wrong))
+    assert prf(found.mask, p.labels)["precision"] > 80
+    c.labels = None
+    assert np.array_equal(build("oracle+prosac")(c, seed=0).mask, build("ratio+prosac")(c, seed=0).mask)

@@ -26,7 +26,7 @@ from .geometry import Camera, PoseEstimate, fit_rotation, sampson_px, scale_pixe
 from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
 from .planes import one_of_a_plane
-from .selectors import METHODS, Correspondences, Selection, build
+from .selectors import GROUND_TRUTH, METHODS, Correspondences, Selection, build
 from .settings import FRONTEND_DEFAULTS, POSE_ESTIMATORS, problem
 from .tracks import NO_TRACK, continue_tracks
 
@@ -65,8 +65,8 @@ def _settled(config: dict) -> dict:
     c["weights"] = str(c["weights"] or "")
     for key, value in c.items():
         if key == "pose_estimator" and value in METHODS:  # offline (replay --pose-estimator): any nmnet eval method
-            if value == "oracle":  # it selects by ground-truth labels, which only sequence folders have (nmnet eval)
-                raise ValueError("pose_estimator 'oracle' needs each match's ground-truth label, which only `nmnet eval` "
+            if value in GROUND_TRUTH:  # they read ground-truth labels, which only sequence folders have (nmnet eval)
+                raise ValueError(f"pose_estimator {value!r} needs each match's ground-truth label, which only `nmnet eval` "
                                  "on sequence folders has: on frames it would select nothing; choose another (see nmnet eval)")
             continue
         if (why := problem(key, value, strict=False)) is not None:

@@ -9,7 +9,8 @@ ratio test keep; both NM-Net MAGSAC++ fits take ``ratio+magsac``'s pose where th
 ``fallback_min_inliers`` matches; ``ratio+poselib``: the classic pre-filter then PoseLib; ``ratio+prosac``: PoseLib
 sampling a wider pool in the ratio test's order (PROSAC, no network); ``nmnet+prosac``: the same in NM-Net's order,
 the front end's default (level with ``ratio+prosac``, see docs/evaluation.md); ``oracle``: ground-truth inliers +
-MAGSAC++ (the ceiling).
+MAGSAC++ (a bound no selector reaches: the labels are chosen by the true pose); ``oracle+prosac``: the default's fit
+in the ground truth's order, labelled inliers first (the ceiling of any learned order).
 """
 
 from __future__ import annotations
@@ -69,7 +70,7 @@ class Correspondences:
     focal: float  # pixels, converts pixel thresholds to normalised ones
     size0: tuple[int, int]  # (width, height) of image 0
     size1: tuple[int, int]
-    labels: np.ndarray | None = None  # ground truth, only the oracle reads it
+    labels: np.ndarray | None = None  # ground truth, only the oracles read it
 
     def __len__(self) -> int:
         return len(self.k0)
@@ -134,6 +135,11 @@ def nmnet_prosac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Co
     logits, scores, _ = scored
     sel = prosac_fit(c, logits, cfg)
     return Selection(sel.mask, scores, sel.pose, sel.candidates)
+
+
+def true_labels(c: Correspondences) -> np.ndarray:
+    """The ground-truth inlier labels (``nmnet eval``'s pairs), or none labelled where the pair has none (frames)."""
+    return c.labels if c.labels is not None else np.zeros(len(c), bool)
 
 
 def nmnet_logits(model: NMNet | FastNMNet, c: Correspondences, neighbors: np.ndarray | None = None) -> np.ndarray:
@@ -295,8 +301,9 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         "ratio+prosac": lambda c, seed=None: prosac_fit(c, -c.ratio, at(seed)),
         "gms": lambda c: _filtered(c, gms_mask(c)),
         "lpm": lambda c: _filtered(c, lpm_mask(c)),
-        "oracle": lambda c, seed=None: robust_fit(c, c.labels if c.labels is not None else np.zeros(len(c), bool), "magsac",
-                                               at(seed)),
+        "oracle": lambda c, seed=None: robust_fit(c, true_labels(c), "magsac", at(seed)),
+        # labelled inliers first, each group in the ratio's order
+        "oracle+prosac": lambda c, seed=None: prosac_fit(c, 2.0 * true_labels(c) - c.ratio, at(seed)),
     }
     if name not in table:
         raise ValueError(f"unknown method {name!r}; choose from {', '.join(METHODS)}")
@@ -304,5 +311,6 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
 
 
 ROBUST = ("ratio+magsac", "ratio+poselib", "ratio+prosac", "ransac", "magsac", "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac",
-          "oracle")  # end in a seeded robust fit
+          "oracle", "oracle+prosac")  # end in a seeded robust fit
 NETWORK = ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac")  # run NM-Net
+GROUND_TRUTH = ("oracle", "oracle+prosac")  # read each match's ground-truth label: nmnet eval only

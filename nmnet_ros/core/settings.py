@@ -17,7 +17,7 @@ DETECTOR_NAMES = ("hessian-affine", "hessian-affine-fast", "sift")
 PRECISION_NAMES = ("auto", "float32", "bfloat16")  # auto = bfloat16 where the CPU has it natively
 # the correspondence selectors (core/selectors.py), as nmnet eval names them
 METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ratio+poselib", "ratio+prosac", "ransac", "magsac", "gms", "lpm",
-           "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac", "oracle")
+           "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac", "oracle", "oracle+prosac")
 POSE_ESTIMATORS = {  # the node's pose_estimator names and the selector (nmnet eval's method) each runs
     "prosac": "nmnet+prosac", "ratio_magsac": "nmnet+ratio+magsac", "magsac": "nmnet+magsac", "weighted8": "nmnet",
     "classic": "ratio+magsac"}
