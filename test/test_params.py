@@ -136,3 +136,27 @@ def test_a_setting_has_one_name_on_the_node_the_front_end_and_every_tool():
         for dest, action in by_dest.items():  # no option sets a setting under another name
             names = {o.lstrip("-").replace("-", "_") for o in action.option_strings}
             assert not (names & set(BY_NAME)) or dest in BY_NAME, (command, action.option_strings)
+
+
+def test_a_setting_the_pose_estimator_does_not_read_is_a_warning_not_a_silent_change():
+    """Under the default (PoseLib PROSAC) the MAGSAC++ polish, the network's cut and the classic fallback are not
+    read: a changed value is a warning naming the setting and the estimators that read it; a value left at its
+    default, or read by the estimator chosen, is not."""
+    import warnings
+
+    from nmnet_ros.core.pipeline import Frontend
+    from nmnet_ros.core.settings import FRONTEND_DEFAULTS, METHODS, SETTINGS, inert
+
+    assert all(set(s.methods) <= set(METHODS) for s in SETTINGS)
+    changed = {"pose_refine_iterations": 10, "score_threshold": 0.9, "fallback_min_inliers": 0}
+    lines = inert({**FRONTEND_DEFAULTS, **changed})
+    assert len(lines) == 3 and lines[1] == ("pose_refine_iterations 10 has no effect with pose_estimator 'prosac': "
+                                            "only ratio_magsac, magsac, classic read it")
+    assert inert(FRONTEND_DEFAULTS) == [] and inert({**FRONTEND_DEFAULTS, "pose_estimator": "ratio_magsac", **changed}) == []
+    assert inert({**FRONTEND_DEFAULTS, "pose_estimator": "ratio+prosac", "pose_refine_iterations": 0}) == [
+        "pose_refine_iterations 0 has no effect with pose_estimator 'ratio+prosac': only ratio_magsac, magsac, classic "
+        "read it"]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        Frontend(None, {"pose_refine_iterations": 10})
+    assert [str(w.message) for w in caught] == [lines[1]]

@@ -13,6 +13,7 @@ stage when that shortens the slower stage (2000 keypoints: matching grows with N
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -27,7 +28,7 @@ from .matching import Matches, match_descriptors
 from .matching import warm_up as warm_up_matching
 from .planes import one_of_a_plane
 from .selectors import GROUND_TRUTH, METHODS, Correspondences, Selection, build
-from .settings import FRONTEND_DEFAULTS, POSE_ESTIMATORS, problem
+from .settings import FRONTEND_DEFAULTS, POSE_ESTIMATORS, inert, problem
 from .tracks import NO_TRACK, continue_tracks
 
 DEFAULT_CONFIG: dict = dict(FRONTEND_DEFAULTS)  # the settings vocabulary's front-end settings (core/settings.py)
@@ -71,6 +72,8 @@ def _settled(config: dict) -> dict:
             continue
         if (why := problem(key, value, strict=False)) is not None:
             raise ValueError(why)
+    for line in inert(c):
+        warnings.warn(line, stacklevel=3)
     return c
 
 

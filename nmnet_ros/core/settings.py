@@ -8,6 +8,7 @@ are all made from :data:`SETTINGS`, so a setting has the same name everywhere. P
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 Value = bool | int | float | str
@@ -37,6 +38,7 @@ class Setting:
     frontend: bool = True  # a key of the Frontend's config (else the node's ROS side: topics, QoS, messages)
     tools: tuple[str, ...] = ()  # the nmnet subcommands that take it as an option
     startup_only: bool = False  # fixed once the node runs (subscriptions, thread pools, the start-up camera)
+    methods: tuple[str, ...] = ()  # the selectors (nmnet eval's methods) that read it; empty: every one
 
     @property
     def option(self) -> str:
@@ -58,6 +60,8 @@ class Setting:
 
 FEATURES = ("replay", "eval", "train", "neighbors")  # the tools that detect features
 SELECTING = ("replay", "eval")  # the tools that run NM-Net and a pose estimator as the node does
+NETWORK_CUT = ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac")  # keep what NM-Net scores above its cut
+MAGSAC_FITS = ("ratio+magsac", "ransac", "magsac", "nmnet+magsac", "nmnet+ratio+magsac", "oracle")  # OpenCV's fits
 
 SETTINGS: tuple[Setting, ...] = (
     Setting("weights", "", "NM-Net weights file; empty = the weights shipped with the package", tools=SELECTING),
@@ -71,7 +75,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("k", 8, "compatibility neighbours per correspondence (the shipped network is trained with 8)",
             range=(2, 16), tools=("replay", "neighbors")),
     Setting("score_threshold", -1.0, "NM-Net inlier probability above which a match is kept; -1 = the threshold "
-            "calibrated with the weights", range=(-1.0, 1.0), tools=SELECTING),
+            "calibrated with the weights", range=(-1.0, 1.0), tools=SELECTING, methods=NETWORK_CUT),
     Setting("nmnet_precision", "auto", "NM-Net arithmetic", PRECISION_NAMES, tools=SELECTING,
             details="auto (bfloat16 where the CPU has native bfloat16, else float32), float32 (the exact network), "
                     "bfloat16 (faster on CPUs with native bfloat16, the same decisions to rounding)"),
@@ -87,12 +91,12 @@ SETTINGS: tuple[Setting, ...] = (
             tools=SELECTING, details="raise it for a poorly calibrated or rolling-shutter camera; also the pose "
                                      "polish's scale; prosac's PoseLib fit keeps the matches within 1 px, or within it above 1 px"),
     Setting("pose_refine_iterations", 5, "Levenberg-Marquardt steps polishing the pose after MAGSAC++ (0 = off)",
-            range=(0, 50), tools=SELECTING, details="on the Cauchy-robust Sampson error; prosac's PoseLib fit "
-                                                   "refines its own pose"),
+            range=(0, 50), tools=SELECTING, methods=MAGSAC_FITS, details="on the Cauchy-robust Sampson error; "
+                                                                         "prosac's PoseLib fit refines its own pose"),
     Setting("fallback_min_inliers", 30, "when MAGSAC++ on NM-Net's selection keeps fewer matches, the pose is fitted "
             "on mutual NN + ratio 0.8's matches instead (0 = never)", range=(0, 100000), tools=SELECTING,
             details="the pairs NM-Net leaves too little of (few inliers, wide baselines), where the classic "
-                    "pre-filter's pose is far better; ratio_magsac and magsac"),
+                    "pre-filter's pose is far better; ratio_magsac and magsac", methods=("nmnet+magsac", "nmnet+ratio+magsac")),
     Setting("min_matches", 8, "fewer selected matches give no pose estimate (identity, variance 1e6)",
             range=(8, 100000), tools=("replay",)),
     Setting("static_flow_px", 1.0, "median flow (px) below which the camera counts as standing", range=(0.0, 1000.0),
@@ -163,6 +167,20 @@ def problem(name: str, value: object, strict: bool = True) -> str | None:
     if s.range is not None and not s.range[0] <= value <= s.range[1]:
         return f"{name}: {value!r} is out of range {s.range[0]} .. {s.range[1]}"
     return None
+
+
+def inert(config: Mapping[str, Value]) -> list[str]:
+    """A warning for each setting that ``config`` (a Frontend's, defaults filled in) moves from its default and its
+    pose_estimator does not read: a change that would otherwise do nothing, silently."""
+    estimator = str(config["pose_estimator"])
+    method = POSE_ESTIMATORS.get(estimator, estimator)  # offline, pose_estimator may name an nmnet eval method
+    out = []
+    for s in SETTINGS:
+        if s.methods and method not in s.methods and config.get(s.name, s.default) != s.default:
+            users = ", ".join(name for name, m in POSE_ESTIMATORS.items() if m in s.methods)
+            out.append(f"{s.name} {config[s.name]!r} has no effect with pose_estimator {estimator!r}: only "
+                       f"{users} read it")
+    return out
 
 
 def for_tool(command: str) -> tuple[Setting, ...]:
