@@ -9,7 +9,7 @@ ratio test keep; both NM-Net MAGSAC++ fits take ``ratio+magsac``'s pose where th
 ``fallback_min_inliers`` matches; ``ratio+poselib``: the classic pre-filter then PoseLib; ``ratio+prosac``: PoseLib
 sampling a wider pool in the ratio test's order (PROSAC, no network); ``nmnet+prosac``: the same in NM-Net's order,
 the front end's default (level with ``ratio+prosac``, see docs/evaluation.md); ``oracle``: ground-truth inliers +
-MAGSAC++ (a bound no selector reaches: the labels are chosen by the true pose); ``oracle+prosac``: the default's fit
+MAGSAC++ (an upper bound: the labels are chosen by the true pose); ``oracle+prosac``: the default's fit
 in the ground truth's order, labelled inliers first (the ceiling of any learned order).
 """
 
@@ -137,7 +137,7 @@ def nmnet_prosac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Co
     return Selection(sel.mask, scores, sel.pose, sel.candidates)
 
 
-def true_labels(c: Correspondences) -> np.ndarray:
+def _true_labels(c: Correspondences) -> np.ndarray:
     """The ground-truth inlier labels (``nmnet eval``'s pairs), or none labelled where the pair has none (frames)."""
     return c.labels if c.labels is not None else np.zeros(len(c), bool)
 
@@ -301,9 +301,9 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         "ratio+prosac": lambda c, seed=None: prosac_fit(c, -c.ratio, at(seed)),
         "gms": lambda c: _filtered(c, gms_mask(c)),
         "lpm": lambda c: _filtered(c, lpm_mask(c)),
-        "oracle": lambda c, seed=None: robust_fit(c, true_labels(c), "magsac", at(seed)),
+        "oracle": lambda c, seed=None: robust_fit(c, _true_labels(c), "magsac", at(seed)),
         # labelled inliers first, each group in the ratio's order
-        "oracle+prosac": lambda c, seed=None: prosac_fit(c, 2.0 * true_labels(c) - c.ratio, at(seed)),
+        "oracle+prosac": lambda c, seed=None: prosac_fit(c, 2.0 * _true_labels(c) - c.ratio, at(seed)),
     }
     if name not in table:
         raise ValueError(f"unknown method {name!r}; choose from {', '.join(METHODS)}")
