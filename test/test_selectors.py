@@ -443,7 +443,7 @@ def test_eval_refuses_weights_of_the_other_variant(capsys):
 
 def test_eval_warns_of_folder_arguments_that_share_frames_or_a_reference_it_did_not_run(tmp_path, cache, capsys):
     """One folder given twice, or ranges that meet: the pairs in both were evaluated twice, silently. A --reference
-    not among --methods left the differences out without a word."""
+    not among --methods left the differences out without a word, and a setting none of them reads changed nothing."""
     import json
 
     from nmnet_ros.tools.cli import main
@@ -461,6 +461,10 @@ def test_eval_warns_of_folder_arguments_that_share_frames_or_a_reference_it_did_
     assert ("(no AUC@5 differences: --reference ratio+magsac is not among --methods; add it, or choose one that is)"
             in capsys.readouterr().out)
     assert main([*argv[:2], *argv[3:], "--reference", "gms"]) == 0 and "AUC@5 minus gms's" in capsys.readouterr().out
+    assert main([*argv[:2], *argv[3:], "--pose-refine-iterations", "3", "--fallback-min-inliers", "30"]) == 0
+    err = capsys.readouterr().err  # a value none of the methods reads is said; the default is not
+    assert ("warning: --pose-refine-iterations 3 changes nothing: none of --methods reads it (these do: ratio+magsac, "
+            "ransac, magsac, nmnet+magsac, nmnet+ratio+magsac, oracle)") in err and "fallback" not in err
 
 
 def test_eval_cli_writes_the_json_contract(tmp_path, cache):

@@ -8,7 +8,7 @@ are all made from :data:`SETTINGS`, so a setting has the same name everywhere. P
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 
 Value = bool | int | float | str
@@ -169,18 +169,20 @@ def problem(name: str, value: object, strict: bool = True) -> str | None:
     return None
 
 
+def unread(config: Mapping[str, Value], methods: Collection[str]) -> list[Setting]:
+    """The settings ``config`` moves from their defaults that none of ``methods`` (nmnet eval's names) reads."""
+    return [s for s in SETTINGS
+            if s.methods and not set(methods) & set(s.methods) and config.get(s.name, s.default) != s.default]
+
+
 def inert(config: Mapping[str, Value]) -> list[str]:
     """A warning for each setting that ``config`` (a Frontend's, defaults filled in) moves from its default and its
     pose_estimator does not read: a change that would otherwise do nothing, silently."""
     estimator = str(config["pose_estimator"])
     method = POSE_ESTIMATORS.get(estimator, estimator)  # offline, pose_estimator may name an nmnet eval method
-    out = []
-    for s in SETTINGS:
-        if s.methods and method not in s.methods and config.get(s.name, s.default) != s.default:
-            users = ", ".join(name for name, m in POSE_ESTIMATORS.items() if m in s.methods)
-            out.append(f"{s.name} {config[s.name]!r} has no effect with pose_estimator {estimator!r}: only "
-                       f"{users} read it")
-    return out
+    return [f"{s.name} {config[s.name]!r} has no effect with pose_estimator {estimator!r}: only "
+            f"{', '.join(name for name, m in POSE_ESTIMATORS.items() if m in s.methods)} read it"
+            for s in unread(config, (method,))]
 
 
 def for_tool(command: str) -> tuple[Setting, ...]:

@@ -26,6 +26,7 @@ from ..core.metrics import prf
 from ..core.model import NEIGHBORS, load_model
 from ..core.model_fast import precision_note
 from ..core.selectors import METHODS, NETWORK, ROBUST, build
+from ..core.settings import unread
 from ..io.cache import FeatureCache, default_cache_dir
 from ..io.outputs import output_file, save_figure, write_json
 from ..io.pairs import PairData, absolute_spec, load_pairs, parse_seq_spec, shared_frames, spec_label, to_correspondences, to_stderr
@@ -357,6 +358,9 @@ def main(args: argparse.Namespace) -> int:
     if len(set(labels)) < len(labels):  # two folders of the same name (or one given twice): name them in full
         labels = list(specs)
     config = {**{name: getattr(args, name) for name in SELECTOR_SETTINGS}, "max_iters": args.max_iters}
+    for s in unread(config, methods):
+        print(f"warning: {s.option} {config[s.name]!r} changes nothing: none of --methods reads it (these do: "
+              f"{', '.join(s.methods)})", file=sys.stderr)
     scored, failed, interrupted = score_folders(args, specs, labels, methods, weights, config)
     if interrupted:
         print("interrupted: nothing written", file=sys.stderr)
