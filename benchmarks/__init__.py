@@ -288,7 +288,8 @@ EXPERIMENTS: dict[str, Experiment] = {
     "validation": Experiment(
         "every selector on the validation split (pairs at gaps 1-10 of two scenes never trained on)",
         ("eval", *VALIDATION, "--gaps", "1-10", "--methods", "nmnet,ratio,magsac,ratio+magsac,nmnet+magsac,"
-         "nmnet+ratio+magsac,ratio+poselib,ratio+prosac,nmnet+prosac,oracle", "--nmnet-precision", "float32", "--json", "{out}",
+         "nmnet+ratio+magsac,ratio+poselib,ratio+prosac,nmnet+prosac,oracle+prosac,oracle", "--nmnet-precision", "float32",
+         "--json", "{out}",
          "--plots", "{tmp}"),
         render_validation, needs_data=True),
     "hard-validation": Experiment(
