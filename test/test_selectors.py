@@ -799,3 +799,22 @@ def test_oracle_prosac_samples_the_labelled_inliers_first(pairs):
     assert prf(found.mask, p.labels)["precision"] > 80
     c.labels = None
     assert np.array_equal(build("oracle+prosac")(c, seed=0).mask, build("ratio+prosac")(c, seed=0).mask)
+
+
+def test_the_settings_say_which_selectors_read_them(pairs):
+    """``Setting.methods`` (what the inert-setting warnings go by) mirrors the selectors: a method it names gives
+    another mask or pose when the setting changes, on some pair; one it leaves out gives the same everywhere."""
+    from nmnet_ros.core.settings import BY_NAME
+
+    changes = {"pose_refine_iterations": (0, 10), "score_threshold": (-1.0, 0.99), "fallback_min_inliers": (0, 100000)}
+    cheap = [m for m in METHODS if m not in ("nmnet-sp", "lpm")]  # lpm: slow and reads none; nmnet-sp: as nmnet
+    for name, (a, b) in changes.items():
+        for method in cheap:
+            one, other = build(method, {name: a}), build(method, {name: b})
+            differs = False
+            for p in pairs[::4]:
+                c = to_correspondences(p)
+                x, y = one(c), other(c)
+                differs |= not np.array_equal(x.mask, y.mask) or (x.pose is None) != (y.pose is None) or (
+                    x.pose is not None and not np.array_equal(x.pose.R, y.pose.R))
+            assert differs == (method in BY_NAME[name].methods), (name, method)
