@@ -807,9 +807,8 @@ def test_the_settings_say_which_selectors_read_them(pairs):
     from nmnet_ros.core.settings import BY_NAME
 
     changes = {"pose_refine_iterations": (0, 10), "score_threshold": (-1.0, 0.99), "fallback_min_inliers": (0, 100000)}
-    cheap = [m for m in METHODS if m not in ("nmnet-sp", "lpm")]  # lpm: slow and reads none; nmnet-sp: as nmnet
     for name, (a, b) in changes.items():
-        for method in cheap:
+        for method in METHODS:
             one, other = build(method, {name: a}), build(method, {name: b})
             differs = False
             for p in pairs[::4]:
