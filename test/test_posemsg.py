@@ -72,3 +72,37 @@ def test_the_sigmas_set_the_covariance_at_200_matches():
     static = relative_pose_of_current("no_motion", None, 200, (0.05, 0.004))[2]
     assert np.isclose(static[3, 3], np.radians(0.05) ** 2)
     assert estimate_of_message(*relative_pose_of_current("ok", est, 200, (1e-4, 1e-5)))[0] == "ok"  # tiny is still an estimate
+
+
+def test_the_fitted_sigmas_are_those_the_errors_were_drawn_with():
+    """The replay's fitted pose_sigma_* recover the per-axis sigmas (at 200 matches) that errors were drawn with,
+    whatever sigmas the covariance was published with and although a fifth of the estimates are gross failures."""
+    from nmnet_ros.tools.scoring import PairScores
+
+    rng = np.random.default_rng(0)
+    rot_deg, direction = 0.02, 0.01  # the truth: per-axis sigmas at 200 matches
+    published = [PairScores((0.5, 0.05)), PairScores((0.01, 0.2))]
+    for i in range(3000):
+        R = cv2.Rodrigues(rng.normal(0, 0.05, 3))[0]
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)  # the true direction of T_prev_cur (x_cur = R x_prev - R d)
+        T_cur = np.eye(4)
+        T_cur[:3, :3], T_cur[:3, 3] = R.T, d  # camera-to-world, so that relative_pose(I, T_cur) = (R, -R d)
+        n = int(rng.integers(30, 3000))  # the matches the pose rests on
+        s = np.sqrt(200 / n)
+        if i % 5 == 0:  # a gross failure: 10 degrees off, a random direction
+            w, d_est = rng.normal(size=3) * np.radians(10) / np.sqrt(3), rng.normal(size=3)
+        else:
+            w = rng.normal(0, np.radians(rot_deg) * s, 3)
+            across = np.linalg.svd(d[None])[2][1:]  # the two axes across the direction
+            d_est = d + rng.normal(0, direction * s, 2) @ across
+        R_est = cv2.Rodrigues(w)[0] @ R
+        d_est /= np.linalg.norm(d_est)
+        est = PoseEstimate(R_est, -R_est @ d_est, np.zeros((3, 3)), np.zeros(0, bool))
+        for scores in published:
+            scores.add("ok", est, np.eye(4), T_cur, float(i), relative_pose_of_current("ok", est, n, scores.sigmas)[2])
+    for scores in published:
+        fit = scores.summary()
+        assert fit["fitted_pose_sigma_rotation_deg"] == pytest.approx(rot_deg, rel=0.1), fit
+        assert fit["fitted_pose_sigma_direction"] == pytest.approx(direction, rel=0.1), fit
+    assert PairScores().summary()["fitted_pose_sigma_rotation_deg"] is None  # nothing scored, nothing fitted

@@ -26,7 +26,7 @@ from ..interface.caminfo import info_fields
 from ..interface.dds import LARGE_FRAMES_PROFILE
 from ..interface.imgconv import matches_of_cloud
 from ..interface.params import NODE_NAME
-from ..interface.posemsg import estimate_of_message
+from ..interface.posemsg import SIGMAS, estimate_of_message
 from ..io.bags import BagError, BagReader, choose_topics, typestore, window_side
 from ..io.mcap_out import McapOutput
 from ..io.trajectory import Trajectory
@@ -278,16 +278,17 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
                 node_proc.kill()
 
 
-def recording_summary(path: Path, truth: Trajectory | None) -> tuple[dict, dict]:
+def recording_summary(path: Path, truth: Trajectory | None, sigmas: tuple[float, float] = SIGMAS) -> tuple[dict, dict]:
     """A recording of the node's outputs, read once: its ``~/relative_pose`` stream scored against ``truth`` as the
     offline replay scores its results (:class:`~nmnet_ros.tools.scoring.PairScores`; "no estimate" is a failure), and the
     feature tracks of its ``~/matches`` (:class:`~nmnet_ros.core.tracks.TrackLengths`, counted as they are read).
+    ``sigmas``: the node's pose_sigma_* parameters, which the recorded covariances were published with.
 
     Each pose message is relative to the frame of the message before it (see :mod:`nmnet_ros.interface.posemsg`); the
     first (the node's first frame, or a recording that starts later) relates to no frame here and is not scored.
     """
     pose_topic, matches_topic = f"/{NODE_NAME}/relative_pose", f"/{NODE_NAME}/matches"
-    scores, tracks = PairScores(), TrackLengths()  # scored and counted as they come: a long recording is not held
+    scores, tracks = PairScores(sigmas), TrackLengths()  # scored and counted as they come: a long recording is not held
     first = last = None  # the pose messages' first and last stamps
     T_prev, any_truth = None, False
     for m in BagReader(path).messages({pose_topic, matches_topic}):
@@ -301,8 +302,9 @@ def recording_summary(path: Path, truth: Trajectory | None) -> tuple[dict, dict]
         T = None if np.isnan(T[0, 0]) else T
         if first is not None:  # the first message relates to no frame here
             o, p = m.msg.pose.pose.orientation, m.msg.pose.pose.position
-            scores.add(*estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]),
-                                            m.msg.pose.covariance), T_prev, T, last)
+            cov = np.reshape(m.msg.pose.covariance, (6, 6))
+            scores.add(*estimate_of_message(np.array([o.x, o.y, o.z, o.w]), np.array([p.x, p.y, p.z]), cov),
+                       T_prev, T, last, cov)
         first = last if first is None else first
         T_prev, any_truth = T, any_truth or T is not None
     if first is not None and not any_truth and (note := truth_missed(truth, [first, last])):

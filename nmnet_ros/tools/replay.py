@@ -25,6 +25,7 @@ from ..core.settings import for_tool
 from ..interface.framecheck import FrameChecks
 from ..interface.imgconv import MAX_PIXELS
 from ..interface.params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
+from ..interface.posemsg import SIGMAS
 from ..io.bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
 from ..io.datasets import read_camera_yaml
 from ..io.mcap_out import McapOutput
@@ -102,7 +103,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
                 log: Callable[[str], None] = print, camera: Camera | None = None,
                 rectified: bool = False, recorded: bool = False,
                 window: tuple[float, float] | None = None,
-                max_pixels: int = MAX_PIXELS) -> tuple[Run, int, np.ndarray | None]:
+                max_pixels: int = MAX_PIXELS, sigmas: tuple[float, float] = SIGMAS) -> tuple[Run, int, np.ndarray | None]:
     """One pass of the front end ``fe`` over a bag; returns the run, the frame count and the match overlay of the
     first frame with a pose (None when none has one).
 
@@ -112,11 +113,11 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified; ``recorded``: the
     frames are stamped with the time the bag recorded them (``--stamp-source arrival``); ``window``: the part of the
     bag to replay (``--start``, ``--duration``: seconds after its first frame); ``max_pixels``: the node's
-    max_image_pixels.
+    max_image_pixels; ``sigmas``: its pose_sigma_* (the covariance the scores are checked against).
     """
     frames, _ = read_frames(reader, **(topics or {}), rectified=rectified, recorded=recorded, window=window,
                             max_pixels=max_pixels)
-    run = Run(selector_name(fe.config["pose_estimator"]))
+    run = Run(selector_name(fe.config["pose_estimator"]), sigmas)
     notes = Notes(log)
     gate = _Gate(notes, camera, fe.config["time_jump_s"])
     n_frames, overlay = 0, None
@@ -292,7 +293,7 @@ def replay_recording(args: argparse.Namespace) -> int:
                               "resize_width": cfg["resize_width"]}) if args.baseline else None
     out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
     reading = {"camera": camera, "rectified": params["rectified"], "recorded": params["stamp_source"] == "arrival",
-               "window": replay_window(args), "max_pixels": params["max_image_pixels"]}
+               "window": replay_window(args), "max_pixels": params["max_image_pixels"], "sigmas": pose_sigmas(params)}
     runs, interrupted = [], False
     try:
         run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics, **reading)
@@ -389,7 +390,8 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
             print(f"warning: {w}")
     if not interrupted and (w := window_missed(replay_window(args), stats["published"])):
         print(f"warning: {w}")
-    summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth), params, interrupted)
+    summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth, pose_sigmas(params)), params,
+                           interrupted)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
         write_json(args.json, summary)
