@@ -116,7 +116,8 @@ SETTINGS: tuple[Setting, ...] = (
             ("auto", "first", "second"), node=False),
     # the node's ROS side (also read from a parameters file by nmnet replay where it applies)
     Setting("pose_sigma_rotation_deg", 0.5, "published rotation sigma per axis (deg) at 200 selected matches",
-            range=(1e-4, 90.0), frontend=False, details="scaled by sqrt(200 / n); a conservative bound"),
+            range=(1e-4, 90.0), frontend=False, details="scaled by sqrt(200 / n); a conservative bound: nmnet replay "
+                    "with ground truth prints the value that fits a recording"),
     Setting("pose_sigma_direction", 0.05, "published sigma of the unit translation direction at 200 selected matches",
             range=(1e-5, 2.0), frontend=False, details="per component, scaled as the rotation's"),
     Setting("stamp_source", "header", "a frame's time: header (its stamp) or arrival (the node's clock on arrival)",
