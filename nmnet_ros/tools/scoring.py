@@ -72,7 +72,7 @@ def fitted_sigmas(normalised: list[tuple[float, float]], sigmas: tuple[float, fl
 def _gaussian_sigma(z: np.ndarray, dof: int) -> float:
     """The sigma of the Gaussian whose squared errors over ``dof`` axes (chi-square times sigma^2) ``z`` holds, beside
     gross failures, which no Gaussian describes: fitted to the median, then again to the errors below the 99.9 %
-    quantile of the fit, until none leaves (the median alone is pulled up by the failures: by 13 % at a fifth)."""
+    quantile of the fit, until none leaves (the median alone is pulled up by failures: by 15 % where a fifth fail)."""
     kept = z
     for _ in range(10):
         var = float(np.median(kept)) / CHI2_MEDIAN[dof]
