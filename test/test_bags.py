@@ -695,16 +695,16 @@ def test_a_live_summary_says_why_frames_dropped_and_what_it_cannot_know_without_
     never reported (it ended before its first 1 Hz report) leaves them unknown (null in JSON), not 0 or a crash."""
     from nmnet_ros.core.tracks import track_summary
     from nmnet_ros.tools.replay import live_summary
-    from nmnet_ros.tools.scoring import error_summary
+    from nmnet_ros.tools.scoring import PairScores
 
     stats = {"published": 10, "results": 7, "latency_ms": [40.0, 60.0], "diagnostics": {}}
-    s = live_summary(stats, 2.0, error_summary([]), track_summary([]), {"k": 8})
+    s = live_summary(stats, 2.0, PairScores().summary(), track_summary([]), {"k": 8})
     out = capsys.readouterr().out
     assert (s["processed"], s["dropped"], s["received"], s["dropped_busy"]) == (7, 3, None, None), s
     assert "live: 7/10 frames processed, 3 dropped, latency p50 50 ms" in out and "replaced" not in out, out
     assert json.loads(summary_json(s, tmp_path))["received"] is None and "tracks:" not in out  # no matches recorded, no line
     stats["diagnostics"] = {"frames_received": "9", "frames_dropped": "2", "warn_bad_image": "1", "rate_hz": "3.5"}
-    s = live_summary(stats, 2.0, error_summary([]), track_summary([np.array([4, 5]), np.array([4])]), {"k": 8})
+    s = live_summary(stats, 2.0, PairScores().summary(), track_summary([np.array([4, 5]), np.array([4])]), {"k": 8})
     out = capsys.readouterr().out
     assert (s["received"], s["dropped_busy"], s["warnings"]) == (9, 2, {"bad_image": 1}), s
     assert "3 dropped (2 replaced by a newer frame while the node was busy, 1 not received)" in out, out

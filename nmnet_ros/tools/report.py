@@ -98,9 +98,9 @@ def print_scores(s: dict) -> None:
     if s["median_rot_deg"] is not None:
         print(f"   vs ground truth ({s['scored_pairs']} pairs): median rotation error {s['median_rot_deg']:.3f} deg, translation "
               f"{s['median_trans_deg']:.2f} deg, AUC@5/10/20 {s['auc5']:.1f} / {s['auc10']:.1f} / {s['auc20']:.1f}")
-    if s["fitted_pose_sigma_rotation_deg"] is not None:
-        print(f"   the published covariance would fit these errors with pose_sigma_rotation_deg "
-              f"{s['fitted_pose_sigma_rotation_deg']:.3g} and pose_sigma_direction {s['fitted_pose_sigma_direction']:.3g}")
+        if s["fitted_pose_sigma_rotation_deg"] is not None:
+            print(f"   the published covariance would fit these errors with pose_sigma_rotation_deg "
+                  f"{s['fitted_pose_sigma_rotation_deg']:.3g} and pose_sigma_direction {s['fitted_pose_sigma_direction']:.3g}")
     if s["still_pairs"]:
         print(f"   without motion in the ground truth ({s['still_pairs']} pairs: standing, or turning on the spot): "
               f"median rotation error {s['median_still_rot_deg']:.3f} deg")

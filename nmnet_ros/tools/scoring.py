@@ -113,20 +113,17 @@ class PairScores:
             self.still.append(rotation_error_deg(pose.R, step[0]))
 
     def summary(self) -> dict:
-        """:func:`error_summary` of the pairs scored, and the :func:`fitted_sigmas`."""
-        return {**error_summary(self.errors, self.still), **fitted_sigmas(self.normalised, self.sigmas)}
-
-
-def error_summary(errors: list[tuple[float, float]], still: list[float] | None = None) -> dict:
-    """Median rotation / translation errors, pose AUC@5/10/20 (percent) and the pair count of (rot, trans) errors
-    in degrees, and the median rotation error of the ``still`` pairs (:class:`PairScores`): what the offline replay
-    and the live scoring report alike."""
-    e = np.array(errors) if errors else np.zeros((0, 2))
-    aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
-    return {"median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,
-            "median_trans_deg": float(np.median(e[:, 1])) if len(e) else None,
-            "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2], "scored_pairs": len(e),
-            "still_pairs": len(still or []), "median_still_rot_deg": float(np.median(still)) if still else None}
+        """What the offline replay and the live scoring report alike: the median rotation / translation errors, pose
+        AUC@5/10/20 (percent) and the count of the pairs scored, the median rotation error of the still pairs and
+        the :func:`fitted_sigmas`."""
+        e = np.array(self.errors) if self.errors else np.zeros((0, 2))
+        aucs = pose_auc(e.max(1)) if len(e) else [float("nan")] * 3
+        return {"median_rot_deg": float(np.median(e[:, 0])) if len(e) else None,
+                "median_trans_deg": float(np.median(e[:, 1])) if len(e) else None,
+                "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2], "scored_pairs": len(e),
+                "still_pairs": len(self.still),
+                "median_still_rot_deg": float(np.median(self.still)) if self.still else None,
+                **fitted_sigmas(self.normalised, self.sigmas)}
 
 
 def window_missed(window: tuple[float, float] | None, frames: int) -> str | None:
