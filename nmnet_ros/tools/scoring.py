@@ -55,7 +55,7 @@ def normalised_errors(pose: PoseEstimate, R: np.ndarray, t: np.ndarray, cov: np.
     the published and the true translation directions over the direction's. (R, t): the ground truth's step."""
     t_est, t_true = -pose.R.T @ pose.t, -R.T @ t  # T_prev_cur's translations, as published
     chord = np.linalg.norm(t_est / max(np.linalg.norm(t_est), 1e-12) - t_true / np.linalg.norm(t_true))
-    return np.radians(rotation_error_deg(pose.R, R)) ** 2 / cov[3, 3], float(chord**2 / cov[0, 0])
+    return float(np.radians(rotation_error_deg(pose.R, R)) ** 2 / cov[3, 3]), float(chord**2 / cov[0, 0])
 
 
 def fitted_sigmas(normalised: list[tuple[float, float]], sigmas: tuple[float, float]) -> dict:
@@ -72,7 +72,8 @@ def fitted_sigmas(normalised: list[tuple[float, float]], sigmas: tuple[float, fl
 def _gaussian_sigma(z: np.ndarray, dof: int) -> float:
     """The sigma of the Gaussian whose squared errors over ``dof`` axes (chi-square times sigma^2) ``z`` holds, beside
     gross failures, which no Gaussian describes: fitted to the median, then again to the errors below the 99.9 %
-    quantile of the fit, until none leaves (the median alone is pulled up by failures: by 15 % where a fifth fail)."""
+    quantile of the fit, until none leaves (the median alone is pulled up by failures: by 15 % where a fifth fail).
+    Where half or more fail, the median is a failure's and so is the fit."""
     kept = z
     for _ in range(10):
         var = float(np.median(kept)) / CHI2_MEDIAN[dof]
