@@ -49,13 +49,16 @@ def _step_error(status: str, pose: PoseEstimate | None, R: np.ndarray, t: np.nda
     return pose_error_deg(pose, R, t)
 
 
-def normalised_errors(pose: PoseEstimate, R: np.ndarray, t: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
+def normalised_errors(rot_deg: float, pose: PoseEstimate, R: np.ndarray, t: np.ndarray, cov: np.ndarray
+                      ) -> tuple[float, float]:
     """An estimate's squared errors over the variances its relative_pose message publishes (``cov``, 6x6: x y z
-    roll pitch yaw): the rotation angle's (radians) over the rotation's variance per axis, and the chord between
-    the published and the true translation directions over the direction's. (R, t): the ground truth's step."""
+    roll pitch yaw): its rotation error ``rot_deg`` (radians) over the rotation's variance per axis, and the chord
+    between the published and the true translation directions over the direction's (signed: a reversed direction
+    is an error here, unlike in :func:`~nmnet_ros.core.geometry.translation_error_deg`). (R, t): the ground
+    truth's step."""
     t_est, t_true = -pose.R.T @ pose.t, -R.T @ t  # T_prev_cur's translations, as published
     chord = np.linalg.norm(t_est / max(np.linalg.norm(t_est), 1e-12) - t_true / np.linalg.norm(t_true))
-    return float(np.radians(rotation_error_deg(pose.R, R)) ** 2 / cov[3, 3]), float(chord**2 / cov[0, 0])
+    return float(np.radians(rot_deg) ** 2 / cov[3, 3]), float(chord**2 / cov[0, 0])
 
 
 def fitted_sigmas(normalised: list[tuple[float, float]], sigmas: tuple[float, float]) -> dict:
@@ -109,7 +112,7 @@ class PairScores:
             self.errors.append(err)
             self.stamps.append(stamp)
             if status == "ok" and pose is not None and cov is not None:
-                self.normalised.append(normalised_errors(pose, step[0], step[1], cov))
+                self.normalised.append(normalised_errors(err[0], pose, step[0], step[1], cov))
         elif pose is not None and not step[2]:
             self.still.append(rotation_error_deg(pose.R, step[0]))
 
