@@ -293,7 +293,7 @@ def replay_recording(args: argparse.Namespace) -> int:
                               "resize_width": cfg["resize_width"]}) if args.baseline else None
     out = McapOutput(args.out, pose_sigmas(params))  # fails before any processing when not writable
     reading = {"camera": camera, "rectified": params["rectified"], "recorded": params["stamp_source"] == "arrival",
-               "window": replay_window(args), "max_pixels": params["max_image_pixels"], "sigmas": pose_sigmas(params)}
+               "window": replay_window(args), "max_pixels": params["max_image_pixels"], "sigmas": out.pose_sigmas}
     runs, interrupted = [], False
     try:
         run, n, overlay = process_bag(reader, out, fe, truth, args.debug_images, not args.no_progress, topics, **reading)

@@ -177,7 +177,7 @@ class Run:
 
     def add(self, r: FrameResult, T: np.ndarray | None) -> None:
         """One more frame's result ``r``, with the ground truth's pose ``T`` at its stamp (None: none there)."""
-        cov = relative_pose_of_current(r.status, r.pose, r.pose_matches, self.scores.sigmas)[2]  # as published
+        cov = None if T is None else relative_pose_of_current(r.status, r.pose, r.pose_matches, self.scores.sigmas)[2]
         self.scores.add(r.status, r.pose, self.steps[-1].T if self.steps else None, T, r.stamp, cov)
         self.tracks.add(r.track_ids[r.mask])
         R, t = (r.pose.R, r.pose.t) if r.pose else (None, None)
