@@ -32,6 +32,8 @@ from nmnet_ros.tools.options import SAMPLE_BAG
 
 from .conftest import ROOT, data_dir, planar_views
 
+FITTED = ("fitted_pose_sigma_rotation_deg", "fitted_pose_sigma_direction")  # the summary's pose sigmas fitted to its errors
+
 
 def nmnet(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", *args], capture_output=True, text=True, cwd=ROOT, timeout=timeout)
@@ -1118,8 +1120,7 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     tf = tf_ground_truth(BagReader(raw_bag), "/tf", "world", "camera_gt")
     live_scoring = [recording_summary(tmp_path / "bag.mcap", gt)[0] for gt in (own, read_tum(tum), tf)]
     assert live_scoring[0]["scored_pairs"] == 5 and live_scoring[1] == pytest.approx(live_scoring[0])  # as --live scores
-    fitted = ("fitted_pose_sigma_rotation_deg", "fitted_pose_sigma_direction")  # from the recorded covariances too
-    assert [live_scoring[0][k] for k in fitted] == pytest.approx([runs["bag"][k] for k in fitted]), live_scoring[0]
+    assert [live_scoring[0][k] for k in FITTED] == pytest.approx([runs["bag"][k] for k in FITTED]), live_scoring[0]
     assert live_scoring[2] == pytest.approx(live_scoring[0])
     unscored = recording_summary(tmp_path / "bag.mcap", None)[0]  # no ground truth: nothing scored
     assert unscored["scored_pairs"] == 0 and unscored["median_rot_deg"] is None and np.isnan(unscored["auc5"])
@@ -1693,11 +1694,12 @@ def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
                 if c.topic.endswith("relative_pose")]
     assert len(covs) == 6 and covs[0][0, 0] == NO_ESTIMATE_VAR  # the first frame: no estimate
     assert all(np.isclose(c[3, 3] / c[0, 0], np.radians(0.05) ** 2 / 0.05**2) for c in covs[1:])
-    from nmnet_ros.tools.live import recording_summary  # the sigmas fitted to the errors, offline and from the file's
+    from nmnet_ros.tools.live import recording_summary  # the fitted sigmas, offline and from the file's covariances
 
-    fitted = ("fitted_pose_sigma_rotation_deg", "fitted_pose_sigma_direction")  # covariances, published at 0.05
     live = recording_summary(tmp_path / "b.mcap", bag_ground_truth(BagReader(raw_bag), "/ground_truth/pose"), (0.05, 0.05))[0]
-    assert s[fitted[0]] is not None and [live[k] for k in fitted] == pytest.approx([s[k] for k in fitted]), (live, s)
+    assert s[FITTED[0]] is not None and [live[k] for k in FITTED] == pytest.approx([s[k] for k in FITTED]), (live, s)
+    assert (f"the published covariance would fit these errors with pose_sigma_rotation_deg {s[FITTED[0]]:.3g} and "
+            f"pose_sigma_direction {s[FITTED[1]]:.3g}") in r.stdout, r.stdout  # said, as the JSON has it
     params.write_text("/**:\n  ros__parameters:\n    pose_threshold_px: 0.0\n")
     r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "c.mcap"), "--params-file", str(params))
     assert r.returncode == 2 and f"{params}: pose_threshold_px: 0.0 is out of range 0.05 .. 10.0" in r.stderr, r.stderr
