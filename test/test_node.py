@@ -650,7 +650,7 @@ def test_parameters_from_yaml_and_command_line(ros, tmp_path):
     assert f"{other}: no section applies to /nmnet_node (sections: /camera_driver, /nmnet)" in out
     # values the default estimator does not read are said, not silently kept
     assert "score_threshold 0.7 has no effect with pose_estimator 'prosac': only ratio_magsac, magsac, weighted8" in out
-    assert f"{yaml_file}: no section" and "'k' is not" not in out and "use_sim_time" not in out
+    assert f"{yaml_file}: no section" not in out and "'k' is not" not in out and "use_sim_time" not in out
 
 
 def set_params(peer: Peer, values: dict) -> list:
