@@ -121,6 +121,8 @@ def test_a_cluster_replays_every_recording_as_a_serial_replay_does_and_reports_t
     assert len(rows["truncated"]["recording_warnings"]) == 1  # once, though the bag is read twice (truth, frames)
     assert "truncated" in (run / "report.md").read_text().split("| truncated |")[1].splitlines()[0]
     assert rows["drive0"]["frames"] == 40 and rows["truncated"]["frames"] < 40
+    for key in ("fitted_pose_sigma_rotation_deg", "fitted_pose_sigma_direction"):  # the bags carry ground truth
+        assert rows["drive0"][key] == serial["drive0"][key] > 0, key
     assert report["totals"]["processed"] == sum(s["processed"] for s in serial.values())
     assert not list(run.glob(".partial-*"))
 
@@ -235,14 +237,18 @@ def test_a_fleet_out_is_a_folder_and_never_an_input(tmp_path):
 def test_the_report_totals_the_finished_recordings_and_names_the_failed():
     from nmnet_ros.tools.replay import FLEET
 
-    rows = [{"name": "a", "status": "ok", "frames": 40, "processed": 40, "dropped": 0, "auc5": 80.0, "fps": 4.0},
-            {"name": "b", "status": "ok", "frames": 20, "processed": 18, "dropped": 2, "auc5": None, "fps": 6.0},
+    rows = [{"name": "a", "status": "ok", "frames": 40, "processed": 40, "dropped": 0, "auc5": 80.0, "fps": 4.0,
+             "fitted_pose_sigma_rotation_deg": 0.05, "fitted_pose_sigma_direction": 0.02},
+            {"name": "b", "status": "ok", "frames": 20, "processed": 18, "dropped": 2, "auc5": None, "fps": 6.0,
+             "fitted_pose_sigma_rotation_deg": None, "fitted_pose_sigma_direction": None},
             {"name": "c", "status": "failed", "error": "BagError: unreadable"},
             {"name": "d", "status": "interrupted"}]
     t = fleet.totals(FLEET, rows)
     assert t == {"recordings": 4, "ok": 2, "failed": 1, "interrupted": 1, "frames": 60, "processed": 58, "dropped": 2,
-                 "auc5": 80.0, "fps": 5.0}  # AUC@5 over the scored recording only
+                 "auc5": 80.0, "fps": 5.0, "fitted_pose_sigma_rotation_deg": 0.05,
+                 "fitted_pose_sigma_direction": 0.02}  # AUC@5 and the fitted sigmas over the scored recording only
     table = fleet.report_table(FLEET, {"recordings": rows, "totals": t})
+    assert "| 80.0 | 0.05 | 0.02 | 4.0 |" in table.splitlines()[2], table  # a's row
     assert "| c | failed |" in table and "BagError: unreadable" in table and "1 not run (interrupted)" in table
 
 
