@@ -61,3 +61,16 @@ def test_the_readme_stays_a_front_page_and_no_page_keeps_a_diary():
         assert not re.search(r"\b20\d\d-\d\d-\d\d\b", text), page  # a date
         assert not re.search(r"\b(at|commit) [0-9a-f]{7,40}\b", text), page  # a commit hash
         assert not re.search(r"\brun \d+\b", text, re.I), page  # a run number
+
+
+def test_the_architecture_map_names_every_module_in_its_layer():
+    """docs/architecture.md's map of the package: each layer's paragraph names each of its modules, so that a new
+    module is placed (and a removed one leaves) with the code."""
+    block = (ROOT / "docs" / "architecture.md").read_text().split("```")[1]
+    layers = dict(re.findall(r"^  (\w+)/ +(.*?)(?=^  \w+/|\Z)", block, re.M | re.S))
+    package = ROOT / "nmnet_ros"
+    assert set(layers) == {p.parent.name for p in package.glob("*/__init__.py")}, layers.keys()
+    for layer, text in layers.items():
+        named = set(re.findall(r"\w+", text))
+        missing = [m.stem for m in (package / layer).glob("*.py") if m.stem != "__init__" and m.stem not in named]
+        assert not missing, f"docs/architecture.md does not place {layer}/{missing}"
