@@ -81,6 +81,14 @@ def relative_pose_of_current(status: str, pose: PoseEstimate | None, num_matches
     return rot_to_quat(R_pc), t_pc, cov
 
 
+def widened(cov: np.ndarray, sigmas: tuple[float, float] = SIGMAS) -> bool:
+    """Whether a published covariance (6x6) was widened to reach a plane's second pose: its rotation and direction
+    variances are no longer in the proportion of ``sigmas``, the (rotation degrees, direction) it was published
+    with. Such a frame's variance says how far the other pose is, not how the estimate scatters."""
+    rot, direction = cov[3, 3] * sigmas[1] ** 2, cov[0, 0] * np.radians(sigmas[0]) ** 2
+    return bool(abs(rot - direction) > 1e-9 * max(rot, direction))
+
+
 def _of_current(pose: PoseEstimate) -> tuple[np.ndarray, np.ndarray]:
     """T_prev_cur's rotation and unit translation of a pose x_cur = R x_prev + t."""
     t_pc = -pose.R.T @ pose.t

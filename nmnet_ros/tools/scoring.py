@@ -11,7 +11,7 @@ import numpy as np
 from ..core.geometry import PoseEstimate, pose_auc, pose_error_deg, relative_pose, rotation_error_deg
 from ..core.pipeline import RESTARTS, FrameResult
 from ..core.tracks import TrackLengths
-from ..interface.posemsg import SIGMAS, relative_pose_of_current
+from ..interface.posemsg import SIGMAS, relative_pose_of_current, widened
 from ..io.trajectory import Trajectory
 
 STATIC_GT_M = 0.01  # ground-truth motion below this (in GT units) is a static pair
@@ -105,13 +105,14 @@ class PairScores:
     def add(self, status: str, pose: PoseEstimate | None, T_prev: np.ndarray | None, T_cur: np.ndarray | None,
             stamp: float, cov: np.ndarray | None = None) -> None:
         """Score the pair that ends at the frame stamped ``stamp``; ``cov``: the covariance its relative_pose
-        message carries (6x6), to check against the errors."""
+        message carries (6x6), to check against the errors (where it was not widened to a plane's second pose,
+        which does not scale with the sigmas)."""
         if (step := _gt_step(status, T_prev, T_cur)) is None:
             return
         if (err := _step_error(status, pose, *step)) is not None:
             self.errors.append(err)
             self.stamps.append(stamp)
-            if status == "ok" and pose is not None and cov is not None:
+            if status == "ok" and pose is not None and cov is not None and not widened(cov, self.sigmas):
                 self.normalised.append(normalised_errors(err[0], pose, step[0], step[1], cov))
         elif pose is not None and not step[2]:
             self.still.append(rotation_error_deg(pose.R, step[0]))
