@@ -1120,6 +1120,7 @@ def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     tf = tf_ground_truth(BagReader(raw_bag), "/tf", "world", "camera_gt")
     live_scoring = [recording_summary(tmp_path / "bag.mcap", gt)[0] for gt in (own, read_tum(tum), tf)]
     assert live_scoring[0]["scored_pairs"] == 5 and live_scoring[1] == pytest.approx(live_scoring[0])  # as --live scores
+    assert runs["bag"][FITTED[0]] is not None  # fitted, so that the comparison below is not of two Nones
     assert [live_scoring[0][k] for k in FITTED] == pytest.approx([runs["bag"][k] for k in FITTED]), live_scoring[0]
     assert live_scoring[2] == pytest.approx(live_scoring[0])
     unscored = recording_summary(tmp_path / "bag.mcap", None)[0]  # no ground truth: nothing scored

@@ -392,7 +392,7 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
             print(f"warning: {w}")
     if not interrupted and (w := window_missed(replay_window(args), stats["published"])):
         print(f"warning: {w}")
-    summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth, pose_sigmas(params)), params,
+    summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth, out.pose_sigmas), params,
                            interrupted)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
