@@ -234,7 +234,9 @@ def test_a_fleet_out_is_a_folder_and_never_an_input(tmp_path):
     assert r.returncode == 2 and "the output" in r.stderr and "an input" in r.stderr, r.stderr
 
 
-def test_the_report_totals_the_finished_recordings_and_names_the_failed():
+def test_the_report_totals_the_finished_recordings_and_names_the_failed(tmp_path):
+    """The totals, the table and the plot: a value a recording lacks is '-' in the table and no bar in the plot (not
+    a bar at 0, which reads as an AUC@5 of 0 or a perfect sigma); the failed are named in red."""
     from nmnet_ros.tools.replay import FLEET
 
     rows = [{"name": "a", "status": "ok", "frames": 40, "processed": 40, "dropped": 0, "auc5": 80.0, "fps": 4.0,
@@ -250,6 +252,17 @@ def test_the_report_totals_the_finished_recordings_and_names_the_failed():
     table = fleet.report_table(FLEET, {"recordings": rows, "totals": t})
     assert "| 80.0 | 0.05 | 0.02 | 4.0 |" in table.splitlines()[2], table  # a's row
     assert "| c | failed |" in table and "BagError: unreadable" in table and "1 not run (interrupted)" in table
+    fig = fleet._plot(FLEET, tmp_path / "report.png", rows)
+    assert (tmp_path / "report.png").stat().st_size > 0
+    shown = {ax.get_ylabel(): [bar.get_height() for bar in ax.patches] for ax in fig.axes}
+    assert list(shown) == ["AUC@5", "fitted pose_sigma_rotation_deg", "fitted pose_sigma_direction", "frames/s"]
+    assert shown["AUC@5"][0] == 80.0 and all(h != h for h in shown["AUC@5"][1:]), shown  # NaN: no bar
+    sigma = shown["fitted pose_sigma_direction"]
+    assert sigma[0] == 0.02 and all(h != h for h in sigma[1:]), shown
+    assert shown["frames/s"][:2] == [4.0, 6.0]
+    names = fig.axes[-1].get_xticklabels()
+    assert [n.get_text() for n in names] == ["a", "b", "c", "d"]
+    assert [n.get_color() for n in names] == ["tab:blue", "tab:blue", "tab:red", "tab:red"]
 
 
 @pytest.mark.slow

@@ -26,8 +26,12 @@ from collections.abc import Callable
 from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..io.outputs import not_an_input, not_someone_elses, save_figure, write_json, write_markdown
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 REPORT = ("report.json", "report.md", "report.png")
 PARTIAL = ".partial-"  # prefix of a recording's folder while it is being written
@@ -392,8 +396,9 @@ def report_table(job: Job, report: dict) -> str:
     return "\n".join(lines)
 
 
-def _plot(job: Job, path: Path, rows: list[dict]) -> None:
-    """Each averaged column per recording, failures marked."""
+def _plot(job: Job, path: Path, rows: list[dict]) -> Figure:
+    """Each averaged column per recording, the names of the failed in red; no bar where a recording has no value
+    (no ground truth: no AUC@5, no fitted sigma), as the table's "-". Returns the (closed) figure."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -405,8 +410,11 @@ def _plot(job: Job, path: Path, rows: list[dict]) -> None:
     x = range(len(rows))
     colours = ["tab:blue" if r["status"] == "ok" else "tab:red" for r in rows]
     for ax, c in zip(axes[:, 0], shown, strict=True):
-        ax.bar(x, [r.get(c.key) or 0.0 for r in rows], color=colours)
+        ax.bar(x, [float("nan") if r.get(c.key) is None else r[c.key] for r in rows], color=colours)
         ax.set_ylabel(c.header)
     axes[-1, 0].set_xticks(list(x), [r["name"] for r in rows], rotation=60, ha="right", fontsize=7)
+    for label, colour in zip(axes[-1, 0].get_xticklabels(), colours, strict=True):
+        label.set_color(colour)
     axes[0, 0].set_title(f"{job.command}, per recording (red: failed or not run)")
     save_figure(fig, path)
+    return fig
