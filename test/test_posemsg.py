@@ -6,7 +6,7 @@ import pytest
 
 from nmnet_ros.core.geometry import PoseEstimate
 from nmnet_ros.core.pipeline import RESTARTS
-from nmnet_ros.interface.posemsg import NO_ESTIMATE_VAR, estimate_of_message, relative_pose_of_current
+from nmnet_ros.interface.posemsg import NO_ESTIMATE_VAR, estimate_of_message, relative_pose_of_current, widened
 
 
 def _pose(deg: float, t: tuple[float, float, float]) -> PoseEstimate:
@@ -72,6 +72,19 @@ def test_the_sigmas_set_the_covariance_at_200_matches():
     static = relative_pose_of_current("no_motion", None, 200, (0.05, 0.004))[2]
     assert np.isclose(static[3, 3], np.radians(0.05) ** 2)
     assert estimate_of_message(*relative_pose_of_current("ok", est, 200, (1e-4, 1e-5)))[0] == "ok"  # tiny is still an estimate
+
+
+def test_a_covariance_is_widened_only_where_a_second_pose_lies_beyond_the_sigmas():
+    """``widened`` reads the covariance alone (``--live`` has only the message): a plane's second pose within the
+    sigmas leaves it as published (not widened), one beyond them widens it, whatever the sigmas and match count."""
+    for sigmas in ((0.5, 0.05), (0.05, 0.5), (2.0, 0.001)):
+        for n in (10, 200, 5000):
+            est = _pose(3.0, (0.1, -0.2, 1.0))
+            assert not widened(relative_pose_of_current("ok", est, n, sigmas)[2], sigmas)
+            est.alternative = _pose(3.0 + 1e-4, (0.1, -0.2, 1.0))  # as good as the same pose
+            assert not widened(relative_pose_of_current("ok", est, n, sigmas)[2], sigmas)
+            est.alternative = _pose(13.0, (1.0, -0.2, 0.1))  # 10 degrees and far in direction away
+            assert widened(relative_pose_of_current("ok", est, n, sigmas)[2], sigmas), (sigmas, n)
 
 
 def test_the_fitted_sigmas_are_those_the_errors_were_drawn_with():
