@@ -232,8 +232,18 @@ def test_frames_the_ground_truth_does_not_cover_are_left_out_not_given_another_f
 
 
 def test_empty_folder_names_missing_camera_yaml(tmp_path):
-    with pytest.raises(DatasetError, match="camera.yaml"):
+    with pytest.raises(DatasetError, match="camera.yaml: missing; a sequence folder needs camera.yaml"):
         Sequence.load(tmp_path)
+
+
+def test_a_calibration_file_that_is_not_there_is_named_as_such(tmp_path):
+    """``--camera`` (replay, label) naming no file said "missing; a sequence folder needs camera.yaml"."""
+    from nmnet_ros.io.datasets import read_camera_yaml
+
+    with pytest.raises(DatasetError, match=r"nope.yaml: no such file$"):
+        read_camera_yaml(tmp_path / "nope.yaml")
+    with pytest.raises(DatasetError, match=rf"{tmp_path}: not a file$"):
+        read_camera_yaml(tmp_path)
 
 
 def test_a_bag_given_to_eval_names_replay(tmp_path):

@@ -32,7 +32,7 @@ def read_camera_yaml(path: Path, topic: str | None = None) -> Camera:
     settings), so bags recorded without camera_info replay with the calibration they came with."""
     path = Path(path)
     if not path.is_file():
-        raise DatasetError(f"{path}: missing; a sequence folder needs camera.yaml (ROS camera_info YAML)")
+        raise DatasetError(f"{path}: {'not a file' if path.exists() else 'no such file'}")
     try:
         text = path.read_text()
         if text.lstrip().startswith("%YAML:") or "!!opencv-matrix" in text:  # OpenCV's YAML: PyYAML cannot read it
@@ -208,12 +208,12 @@ class Sequence:
             raise DatasetError(f"{root}: not a directory{'; ' + _BAG_HINT if root.suffix in BAG_SUFFIXES else ''}")
         published = None
         if not (root / "camera.yaml").is_file():
-
             if (cam := asl.camera_folder(root)) is not None:
                 return cls._load_asl(root, cam)
             if (images := kitti.image_folder(root)) is not None:
                 return cls._load_kitti(root, images)
-            if (published := tum.published_camera(root)) is None and (hint := _other_layout(root)):
+            if (published := tum.published_camera(root)) is None:
+                hint = _other_layout(root) or "a sequence folder needs camera.yaml (ROS camera_info YAML)"
                 raise DatasetError(f"{root / 'camera.yaml'}: missing; {hint}")
         camera, camera_note = published or (read_camera_yaml(root / "camera.yaml"), None)
         listing = root / "images.txt"
