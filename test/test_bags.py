@@ -492,6 +492,27 @@ def test_a_bag_whose_content_is_not_its_extensions_format_is_named(bags, tmp_pat
     assert afile.read_text() == "a user's file"
 
 
+def test_make_bag_writes_the_format_its_output_is_named_for(tmp_path):
+    """`make-bag --out run.bag` wrote a ROS 2 folder of mcap named run.bag (and --out run.db3 one of mcap): the format
+    was mcap whatever the name said. The name chooses it now, and a --format that contradicts it is refused before
+    anything is written."""
+    seq = data_dir("kitti-07")
+    r = nmnet("make-bag", str(seq) + ":0-1", "--out", str(tmp_path / "cli.bag"))
+    assert r.returncode == 0 and (tmp_path / "cli.bag").is_file(), r.stderr
+    for name, kind in (("a.bag", "bag"), ("b.db3", "db3"), ("c.mcap", "mcap"), ("d", "mcap")):
+        assert make_bag(seq, tmp_path / name, frames=range(2)) == 2
+        reader = BagReader(tmp_path / name)
+        assert reader.kind == kind and (tmp_path / name).is_file() == (kind == "bag"), name
+        assert len(list(read_frames(reader)[0])) == 2, name
+    for name, fmt, says in (("e.bag", "mcap", "its extension says ros1, --format says mcap; .* e.mcap"),
+                            ("f.db3", "mcap", "its extension says sqlite3, --format says mcap"),
+                            ("g.mcap", "sqlite3", "its extension says mcap, --format says sqlite3; .* g.db3"),
+                            ("h.db3", "ros1", "a ROS 1 bag is one file .* name it h.bag")):
+        with pytest.raises(BagError, match=says):
+            make_bag(seq, tmp_path / name, fmt, frames=range(2))
+        assert not (tmp_path / name).exists(), name
+
+
 @pytest.mark.slow
 def test_sigterm_mid_replay_leaves_valid_output(tmp_path):
     out = tmp_path / "o.mcap"

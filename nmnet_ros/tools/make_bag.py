@@ -1,4 +1,4 @@
-"""``nmnet make-bag SEQ_DIR OUT [--format mcap|sqlite3|ros1] [--compressed]``: a sequence folder as a bag.
+"""``nmnet make-bag SEQ_DIR --out OUT [--format mcap|sqlite3|ros1] [--compressed]``: a sequence folder as a bag.
 
 Each frame becomes an Image (or a JPEG CompressedImage), its CameraInfo, and, where the folder's ground truth has a
 pose, a PoseStamped and a /tf transform, stamped as images.txt; written with ``rosbags``' writers.
@@ -74,21 +74,37 @@ def _messages_for_frame(ts, seq: Sequence, i: int, compressed: bool, ros1: bool)
     return out
 
 
-def make_bag(seq_dir: str | Path, out: str | Path, fmt: str = "mcap", compressed: bool = False,
+SUFFIX_FORMATS = {".bag": "ros1", ".db3": "sqlite3", ".mcap": "mcap"}  # what an output's name says it is
+
+
+def bag_format(out: Path, fmt: str | None) -> str:
+    """The format to write ``out`` in: ``fmt``, else the one its extension names (.bag, .db3, .mcap), else mcap. A
+    BagError where the two disagree: a ROS 2 folder named .bag would be taken for a ROS 1 bag, and a .db3 holding
+    mcap for what it is not."""
+    if fmt is not None and fmt not in FORMATS:
+        raise BagError(f"unknown bag format {fmt!r}; use one of {', '.join(FORMATS)}")
+    named = SUFFIX_FORMATS.get(out.suffix)
+    if fmt == "ros1" and named != "ros1":
+        raise BagError(f"{out}: a ROS 1 bag is one file and is read by its .bag extension; name it {out.stem}.bag")
+    if fmt is not None and named is not None and named != fmt:
+        raise BagError(f"{out}: its extension says {named}, --format says {fmt}; drop one, or name the output "
+                       f"{out.stem}{next(k for k, v in SUFFIX_FORMATS.items() if v == fmt)}")
+    return fmt or named or "mcap"
+
+
+def make_bag(seq_dir: str | Path, out: str | Path, fmt: str | None = None, compressed: bool = False,
              frames: range | None = None) -> int:
     """Write a sequence folder as a bag; returns the number of frames written.
 
-    ``mcap``/``sqlite3``: a ROS 2 bag directory (as ``ros2 bag record -o OUT``); ``ros1``: a .bag file.
+    ``mcap``/``sqlite3``: a ROS 2 bag directory (as ``ros2 bag record -o OUT``); ``ros1``: a .bag file. ``fmt`` None:
+    the one ``out``'s extension names (:func:`bag_format`).
     """
-    if fmt not in FORMATS:
-        raise BagError(f"unknown bag format {fmt!r}; use one of {', '.join(FORMATS)}")
-    seq = Sequence.load(seq_dir)
     out = Path(out)
+    fmt = bag_format(out, fmt)
+    seq = Sequence.load(seq_dir)
     if out.exists():
         raise BagError(f"{out} exists already; choose a new output path")
     ros1 = fmt == "ros1"
-    if ros1 and out.suffix != ".bag":
-        raise BagError(f"{out}: a ROS 1 bag is one file and is read by its .bag extension; name it {out.name}.bag")
     output_folder(out.parent, "the output's folder", "the bag")
     not_an_input(out, "the output", [Path(seq_dir), seq.root, *(p.parent for p in seq.paths[:1])])
     out.parent.mkdir(parents=True, exist_ok=True)  # the ROS 2 writer makes its own, the ROS 1 one did not
