@@ -868,6 +868,7 @@ def test_a_refused_camera_info_is_named_then_counted_for_the_frames_it_stops(raw
     r, s = replay_json(bag, tmp_path)
     out = r.stdout + r.stderr
     assert out.count("skipped, camera_info refused: distortion model 'fov' is not supported") == 3, out  # then counted
+    assert "(give the calibration with --camera)" in out, out
     assert "no camera_info yet" not in out and "bad_camera_info: 6 frames in all" in out, out
     assert s["warnings"] == {"bad_camera_info": 6}, s
 

@@ -252,6 +252,8 @@ def test_bad_input_is_survived_and_counted(ros, tmp_path):
         assert wait_diag(peer, "warn_bad_camera_info", 3)
         peer.pub_info.publish(info)
         spin_until(peer.node, lambda: False, 0.5)
+        assert "K all zero)? (calibrate the camera with camera_calibration, or set the fx/fy/cx/cy parameters)" in \
+            node.output(), node.output()  # what to do, not only what is wrong
 
         bad = [image_msg(img0, 2.0, encoding="yuv422_weird")]  # wrong encoding string
         short = image_msg(img0, 2.1)

@@ -353,7 +353,8 @@ class NMNetNode(Node):
         try:
             cam = camera_from_info(msg, self.params["rectified"])
         except (CameraError, ValueError) as e:
-            self._warn("bad_camera_info", f"ignoring camera_info: {e}")
+            self._warn("bad_camera_info", f"ignoring camera_info: {e} (calibrate the camera with camera_calibration, "
+                                          "or set the fx/fy/cx/cy parameters)")
             return
         if self._rect_hint_due and not self.params["rectified"] and np.any(cam.dist):
             self._rect_hint_due = False

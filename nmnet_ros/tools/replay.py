@@ -78,7 +78,8 @@ class _Gate:
         calibration = self.camera or f.camera
         if calibration is None:
             if f.camera_error:
-                self.notes("bad_camera_info", f"frame at {f.stamp:.3f}: skipped, camera_info refused: {f.camera_error}")
+                self.notes("bad_camera_info", f"frame at {f.stamp:.3f}: skipped, camera_info refused: {f.camera_error} "
+                                              "(give the calibration with --camera)")
             else:
                 self.notes("no_camera_info", f"frame at {f.stamp:.3f}: skipped, no camera_info yet (give the calibration "
                                              "with --camera)")
