@@ -1687,6 +1687,22 @@ def test_a_bag_of_rectified_frames_replays_with_the_projection_matrix(raw_bag, t
     assert res[True]["auc5"] > 80 > res[False]["auc5"]  # measured: 10 without the flag (translation 5 deg off)
 
 
+def test_a_live_replay_plays_the_bags_transport_whatever_the_parameters_file_says(raw_bag, tmp_path):
+    """A robot's parameters file with use_compressed: true (its camera sends JPEG) or qos: reliable made the live
+    replay's node subscribe to a topic or QoS the player does not publish: 60 s of silence, then a traceback. The
+    bag's transport wins; the file's other settings still apply."""
+    params = tmp_path / "robot.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    use_compressed: true\n    qos: reliable\n    max_keypoints: 300\n")
+    r, s = replay_json(raw_bag, tmp_path, "--live", "--params-file", str(params))
+    assert r.returncode == 0, r.stderr
+    assert s["processed"] >= 1, s
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([tmp_path / "o.mcap"]) as reader:  # the node ran with the file's 300 keypoints
+        widths = [reader.deserialize(raw, c.msgtype).width for c, _, raw in reader.messages() if c.topic.endswith("matches")]
+    assert len(widths) == s["processed"] and 0 < max(widths) <= 300, widths
+
+
 def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     """--params-file: the settings the node runs (config/nmnet.yaml's form); an option given overrides the file;
     a name the node does not have is pointed out and ignored; a value the node would refuse stops the replay

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import signal
+import subprocess
+import sys
 import time
 from contextlib import contextmanager
 
@@ -1050,3 +1052,25 @@ def test_lasting_warnings_repeat_ever_less_often_until_cleared(ros, monkeypatch)
     finally:
         node.stop()
         node.destroy_node()
+
+
+def test_a_live_replays_node_that_exits_or_never_subscribes_is_a_clear_error(ros):
+    """The live replay's player waited for the node's subscription, then raised a bare RuntimeError: a traceback from
+    `nmnet replay --live` (as when a robot's parameters file set the other image transport)."""
+    from nmnet_ros.tools.live import NodeNotReady, _Player, new_stats
+
+    player = _Player("sensor_msgs/msg/Image", None, new_stats())
+    try:
+        never = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+        try:
+            with pytest.raises(NodeNotReady, match=r"nmnet_node did not subscribe to /nmnet_live_\d+/image within 2 s "
+                                                   rf"\(ROS_DOMAIN_ID {ros['ROS_DOMAIN_ID']}\)"):
+                player.wait_for_node(never, timeout=2.0)
+        finally:
+            never.kill()
+            never.wait()
+        gone = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+        with pytest.raises(NodeNotReady, match="nmnet_node exited with code 3 before it subscribed to the frames"):
+            player.wait_for_node(gone, timeout=60.0)
+    finally:
+        player.node.destroy_node()

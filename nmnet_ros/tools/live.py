@@ -98,16 +98,25 @@ _OUTPUTS = (("matches", "sensor_msgs/msg/PointCloud2"), ("relative_pose", "geome
 
 def _start_node(image_type: str, node_args: list[str] | None) -> subprocess.Popen:
     """``nmnet_node`` in its own process, on the player's domain, its inputs, outputs and /diagnostics remapped under
-    :func:`_prefix` (not a namespace: the parameters file's ``nmnet_node:`` section matches only the root one)."""
+    :func:`_prefix` (not a namespace: the parameters file's ``nmnet_node:`` section matches only the root one).
+
+    The frames' transport is the player's, set after ``node_args`` (rcl: the last value given wins): the message type
+    the bag holds, and qos auto, which follows the player's publisher. A robot's parameters file saying otherwise
+    (use_compressed for another camera, qos reliable) left the node deaf to the player."""
     env = live_env()
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTDDS_BUILTIN_TRANSPORTS",
                                            "FASTDDS_DEFAULT_PROFILES_FILE")})  # the player's own participant
     in_topic, pre = _input_topic(image_type), _prefix()
     remaps = [f"{in_topic}:={pre}/{in_topic}", f"camera_info:={pre}/camera_info", f"/diagnostics:={pre}/diagnostics",
               *(f"~/{name}:={pre}/{name}" for name, _ in _OUTPUTS)]
-    args = ["--ros-args", "-r", f"__node:={NODE_NAME}", "-p", f"use_compressed:={str(in_topic != 'image').lower()}",
-            *(a for r in remaps for a in ("-r", r)), *(node_args or [])]
+    transport = [f"use_compressed:={str(in_topic != 'image').lower()}", "qos:=auto"]
+    args = ["--ros-args", "-r", f"__node:={NODE_NAME}", *(a for r in remaps for a in ("-r", r)), *(node_args or []),
+            *(a for p in transport for a in ("-p", p))]
     return subprocess.Popen([sys.executable, "-m", "nmnet_ros.node", *args], env=env)
+
+
+class NodeNotReady(RuntimeError):
+    """The node of a live replay exited, or never subscribed, before the first frame: nothing was played."""
 
 
 class _Player:
@@ -162,15 +171,18 @@ class _Player:
             self.rclpy.spin_once(self.node, timeout_sec=min(wait, step))
 
     def wait_for_node(self, node_proc: subprocess.Popen, timeout: float = 60.0) -> None:
-        """Until the node subscribes to the frames (RuntimeError if it exits or does not within ``timeout``), then 1 s
-        more: the first messages after discovery can be lost."""
+        """Until the node subscribes to the frames (:class:`NodeNotReady` if it exits or does not within ``timeout``),
+        then 1 s more: the first messages after discovery can be lost."""
         t_end = time.monotonic() + timeout
         while self.pub_img.get_subscription_count() == 0 and time.monotonic() < t_end:
             if node_proc.poll() is not None:
-                raise RuntimeError(f"the node exited with code {node_proc.returncode} before subscribing")
+                raise NodeNotReady(f"nmnet_node exited with code {node_proc.returncode} before it subscribed to the "
+                                   "frames; its log above says why")
             self.rclpy.spin_once(self.node, timeout_sec=0.1)
         if self.pub_img.get_subscription_count() == 0:
-            raise RuntimeError(f"the node did not subscribe within {timeout:.0f} s")
+            raise NodeNotReady(f"nmnet_node did not subscribe to {self.pub_img.topic_name} within {timeout:.0f} s "
+                               f"(ROS_DOMAIN_ID {os.environ['ROS_DOMAIN_ID']}): DDS discovery between two processes on "
+                               "this machine failed, or the node is still starting; its log above may say which")
         self.spin_for(1.0)
 
     def publish(self, msg, is_image: bool, camera: Camera | None) -> None:

@@ -375,7 +375,7 @@ def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: d
 def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, camera: Camera | None, params: dict,
               truth: Trajectory | None = None, topics: dict[str, str | None] | None = None) -> int:
     """Live mode: play into the node, record, score like the offline mode."""
-    from .live import new_stats, play_live, recording_summary
+    from .live import NodeNotReady, new_stats, play_live, recording_summary
 
     t0 = time.perf_counter()
     stats, interrupted = new_stats(), False  # filled as it plays: an interrupted replay sums up what it recorded
@@ -387,6 +387,9 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.main raises it as Ctrl-C)
         interrupted = True
         print("interrupted: closing the output file", file=sys.stderr)
+    except NodeNotReady as e:  # nothing played: the output closes empty, readable
+        print(f"nmnet replay: error: {e}", file=sys.stderr)
+        return 1
     finally:
         out.close()
         for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
