@@ -1690,12 +1690,14 @@ def test_a_bag_of_rectified_frames_replays_with_the_projection_matrix(raw_bag, t
 def test_a_live_replay_plays_the_bags_transport_whatever_the_parameters_file_says(raw_bag, tmp_path):
     """A robot's parameters file with use_compressed: true (its camera sends JPEG) or qos: reliable made the live
     replay's node subscribe to a topic or QoS the player does not publish: 60 s of silence, then a traceback. The
-    bag's transport wins; the file's other settings still apply."""
+    bag's transport wins; the file's other settings still apply, also from a namespaced camera's section (rcl gave
+    those only to a node in that namespace, so the live node ran the defaults while the summary said the file's)."""
     params = tmp_path / "robot.yaml"
-    params.write_text("/**:\n  ros__parameters:\n    use_compressed: true\n    qos: reliable\n    max_keypoints: 300\n")
+    params.write_text("/**:\n  ros__parameters:\n    use_compressed: true\n    qos: reliable\n"
+                      "/robot/nmnet_node:\n  ros__parameters:\n    max_keypoints: 300\n    pose_estimator: classic\n")
     r, s = replay_json(raw_bag, tmp_path, "--live", "--params-file", str(params))
     assert r.returncode == 0, r.stderr
-    assert s["processed"] >= 1, s
+    assert s["processed"] >= 1 and s["parameters"]["max_keypoints"] == 300, s
     from rosbags.highlevel import AnyReader
 
     with AnyReader([tmp_path / "o.mcap"]) as reader:  # the node ran with the file's 300 keypoints

@@ -9,7 +9,7 @@ import pytest
 from nmnet_ros.core.pipeline import DEFAULT_CONFIG as FRONTEND_DEFAULTS
 from nmnet_ros.interface.params import PARAMS, ParamsFileError, check_value, frontend_config, read_params_file
 from nmnet_ros.tools.options import replay as add_arguments
-from nmnet_ros.tools.replay import live_node_args
+from nmnet_ros.tools.replay import given_options, live_node_args, node_params
 
 from .conftest import ROOT
 
@@ -70,12 +70,18 @@ def test_every_default_passes_its_own_check():
     assert all(check_value(name, default) is None for name, default in DEFAULTS.items())
 
 
-def test_a_live_replay_hands_the_node_the_file_then_the_options_given():
+def test_a_live_replay_hands_the_node_the_settings_the_replay_runs_with(tmp_path):
+    """The node was given the --params-file itself, whose /robot/nmnet_node section rcl applies to a node in /robot
+    only: the live node ran the defaults while the summary said the file's values."""
     p = argparse.ArgumentParser()
     add_arguments(p)
-    args = p.parse_args(["bag", "--out", "o.mcap", "--params-file", "mine.yaml", "--max-keypoints", "500", "--rectified"])
-    assert live_node_args(args) == ["--params-file", "mine.yaml", "-p", "max_keypoints:=500", "-p", "rectified:=true"]
-    assert live_node_args(p.parse_args(["bag", "--out", "o.mcap"])) == []
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("/robot/nmnet_node:\n  ros__parameters:\n    max_keypoints: 300\n    detector: sift\n"
+                    "    weights: '/my weights/a: b.pt'\n    static_flow_px: 1.0\n")  # the last one: its default
+    args = p.parse_args(["bag", "--out", "o.mcap", "--params-file", str(mine), "--max-keypoints", "500", "--rectified"])
+    assert live_node_args(node_params(args)) == ["-p", 'weights:="/my weights/a: b.pt"', "-p", 'detector:="sift"',
+                                                 "-p", "max_keypoints:=500", "-p", "rectified:=true"]
+    assert live_node_args(node_params(p.parse_args(["bag", "--out", "o.mcap"]))) == []
 
 
 def test_replay_names_a_node_setting_as_the_node_does():
@@ -83,10 +89,10 @@ def test_replay_names_a_node_setting_as_the_node_does():
     p = argparse.ArgumentParser()
     add_arguments(p)
     args = p.parse_args(["bag", "--out", "o.mcap", "--pose-estimator", "classic", "--nmnet-precision", "float32"])
-    assert live_node_args(args) == ["-p", "nmnet_precision:=float32", "-p", "pose_estimator:=classic"]
+    assert given_options(args) == {"nmnet_precision": "float32", "pose_estimator": "classic"}
     assert p.parse_args(["bag", "--out", "o.mcap", "--precision", "float32"]).nmnet_precision == "float32"  # former name
     args = p.parse_args(["bag", "--out", "o.mcap", "--pose-estimator", "ratio+magsac"])  # eval's name for classic
-    assert live_node_args(args) == ["-p", "pose_estimator:=classic"]  # the node's name for it
+    assert given_options(args) == {"pose_estimator": "classic"}  # the node's name for it
     with pytest.raises(SystemExit):
         p.parse_args(["bag", "--out", "o.mcap", "--pose-estimator", "fancy"])
 

@@ -9,6 +9,7 @@ OpenCV pipeline (SIFT + mutual/ratio + MAGSAC++) over the same frames for compar
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from collections.abc import Callable
@@ -328,12 +329,15 @@ def replay_recording(args: argparse.Namespace) -> int:
     return 130 if interrupted else 0
 
 
-def live_node_args(args: argparse.Namespace) -> list[str]:
-    """The node's ``--ros-args`` for a live replay: the --params-file, then each option given as ``-p``."""
-    out = ["--params-file", str(args.params_file)] if args.params_file else []
-    for name, v in given_options(args).items():
-        out += ["-p", f"{name}:={str(v).lower() if isinstance(v, bool) else v}"]
-    return out
+def live_node_args(params: dict) -> list[str]:
+    """The node's ``--ros-args`` for a live replay: ``-p`` for each of ``params`` (:func:`node_params`) that is not
+    its default, so the node runs with what the offline replay runs with. Not the --params-file itself: rcl would
+    apply its ``/robot/nmnet_node`` section to a node in /robot only, and the replay's node is at the root."""
+    def value(v: object) -> str:  # as rcl reads it (YAML): a string quoted, so a path stays one
+        return str(v).lower() if isinstance(v, bool) else json.dumps(v) if isinstance(v, str) else str(v)
+
+    return [a for name, (default, _, _) in PARAMS.items() if params[name] != default
+            for a in ("-p", f"{name}:={value(params[name])}")]
 
 
 def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: dict, interrupted: bool = False) -> dict:
@@ -381,7 +385,7 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     stats, interrupted = new_stats(), False  # filled as it plays: an interrupted replay sums up what it recorded
     try:
         recorded = params["stamp_source"] == "arrival"  # the player stamps frames as the bag recorded them; the node keeps it
-        node_args = live_node_args(args) + (["-p", "stamp_source:=header"] if recorded else [])
+        node_args = live_node_args(params) + (["-p", "stamp_source:=header"] if recorded else [])
         play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded,
                   window=replay_window(args), stats=stats)
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.main raises it as Ctrl-C)
