@@ -219,7 +219,7 @@ def test_recordings_of_the_same_name_get_folders_of_their_own():
 @pytest.mark.parametrize(("extra", "message"), [
     (["--json", "s.json"], "--json: not with several recordings"),
     (["--gt", "gt.txt"], "--gt: not with several recordings (each recording's ground truth must be in its bag"),
-    (["--live"], "--live: not with several recordings (they would play onto the same topics"),
+    (["--live"], "--live: not with several recordings (a live replay plays at recorded timing and needs the cores"),
 ])
 def test_options_a_fleet_run_cannot_honour_are_refused_before_any_work(tmp_path, extra, message):
     r = _nmnet("replay", str(SAMPLE), str(SAMPLE / "metadata.yaml"), "--out", str(tmp_path / "run"), *extra)

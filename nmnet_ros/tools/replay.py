@@ -257,7 +257,8 @@ def _replay_into(args: argparse.Namespace, recording: Path, folder: Path) -> int
 def _refused_for_a_fleet(args: argparse.Namespace) -> None:
     fleet.several_refused({"json": args.json, "plots": args.plots, "gt": args.gt, "live": args.live},
                           {"gt": "each recording's ground truth must be in its bag: --gt-topic or --gt-tf",
-                           "live": "they would play onto the same topics; replay them offline"})
+                           "live": "a live replay plays at recorded timing and needs the cores to itself; replay them offline, "
+                           "or live one at a time"})
 
 
 FLEET = fleet.Job("replay", _replay_into, "summary.json", (
