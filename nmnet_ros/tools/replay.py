@@ -386,7 +386,7 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
     stats, interrupted = new_stats(), False  # filled as it plays: an interrupted replay sums up what it recorded
     try:
         recorded = params["stamp_source"] == "arrival"  # the player stamps frames as the bag recorded them; the node keeps it
-        node_args = live_node_args(params) + (["-p", "stamp_source:=header"] if recorded else [])
+        node_args = live_node_args({**params, "stamp_source": "header"})
         play_live(reader, out, args.rate, node_args, camera=camera, topics=topics, recorded=recorded,
                   window=replay_window(args), stats=stats)
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cli.main raises it as Ctrl-C)
