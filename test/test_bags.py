@@ -1705,6 +1705,19 @@ def test_a_live_replay_plays_the_bags_transport_whatever_the_parameters_file_say
     assert len(widths) == s["processed"] and 0 < max(widths) <= 300, widths
 
 
+def test_a_domain_ros_cannot_use_stops_a_live_replay_before_its_output(tmp_path):
+    """ROS_DOMAIN_ID=abc (or 300) ended `nmnet replay --live` in rcl's traceback, after the output file was made."""
+    import os
+
+    for domain in ("abc", "300", "-1"):
+        r = subprocess.run([sys.executable, "-m", "nmnet_ros.tools.cli", "replay", str(SAMPLE_BAG), "--live", "--out",
+                            str(tmp_path / "o.mcap")], capture_output=True, text=True, cwd=ROOT, timeout=120,
+                           env={**os.environ, "ROS_DOMAIN_ID": domain})
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        assert f"ROS_DOMAIN_ID='{domain}': a live replay runs on that domain, and ROS takes a whole number" in r.stderr
+        assert not (tmp_path / "o.mcap").exists()
+
+
 def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     """--params-file: the settings the node runs (config/nmnet.yaml's form); an option given overrides the file;
     a name the node does not have is pointed out and ignored; a value the node would refuse stops the replay

@@ -47,6 +47,15 @@ def require_ros() -> None:
         importlib.import_module(package)
 
 
+def check_domain() -> None:
+    """A ROS_DOMAIN_ID the user set is one ROS can use (a whole number from 0 to 232; empty: the default): rcl refuses
+    any other only once the player and the node start, in a traceback. Called before the output file is made."""
+    said = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if said and not (said.isdigit() and int(said) <= 232):
+        raise ValueError(f"ROS_DOMAIN_ID={said!r}: a live replay runs on that domain, and ROS takes a whole number from "
+                         "0 to 232; set one, or unset it for a random free one")
+
+
 def _rclpy_type(msgtype: str):
     pkg, _, name = msgtype.split("/")
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
