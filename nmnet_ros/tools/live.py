@@ -107,7 +107,7 @@ _OUTPUTS = (("matches", "sensor_msgs/msg/PointCloud2"), ("relative_pose", "geome
 
 def _start_node(image_type: str, node_args: list[str] | None) -> subprocess.Popen:
     """``nmnet_node`` in its own process, on the player's domain, its inputs, outputs and /diagnostics remapped under
-    :func:`_prefix` (not a namespace: the parameters file's ``nmnet_node:`` section matches only the root one).
+    :func:`_prefix`; ``node_args``: its settings (``replay.live_node_args``).
 
     The frames' transport is the player's, set after ``node_args`` (rcl: the last value given wins): the message type
     the bag holds, and qos auto, which follows the player's publisher. A robot's parameters file saying otherwise
