@@ -495,15 +495,18 @@ def test_a_bag_whose_content_is_not_its_extensions_format_is_named(bags, tmp_pat
 def test_make_bag_writes_the_format_its_output_is_named_for(tmp_path):
     """`make-bag --out run.bag` wrote a ROS 2 folder of mcap named run.bag (and --out run.db3 one of mcap): the format
     was mcap whatever the name said. The name chooses it now, and a --format that contradicts it is refused before
-    anything is written."""
+    anything is written. --out run.mcap (or .db3) is that one file, as `ros2 bag play run.mcap` and Foxglove open it."""
     seq = data_dir("kitti-07")
     r = nmnet("make-bag", str(seq) + ":0-1", "--out", str(tmp_path / "cli.bag"))
     assert r.returncode == 0 and (tmp_path / "cli.bag").is_file(), r.stderr
     for name, kind in (("a.bag", "bag"), ("b.db3", "db3"), ("c.mcap", "mcap"), ("d", "mcap")):
         assert make_bag(seq, tmp_path / name, frames=range(2)) == 2
         reader = BagReader(tmp_path / name)
-        assert reader.kind == kind and (tmp_path / name).is_file() == (kind == "bag"), name
+        # a storage file's name gets that one file (a folder named c.mcap held c.mcap.mcap); another, a bag folder
+        assert reader.kind == kind and (tmp_path / name).is_file() == (name != "d"), name
         assert len(list(read_frames(reader)[0])) == 2, name
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bag", "b.db3", "c.mcap", "cli.bag", "d"]  # no staging left
+    assert sorted(p.name for p in (tmp_path / "d").iterdir()) == ["d.mcap", "metadata.yaml"]
     for name, fmt, says in (("e.bag", "mcap", "its extension says ros1, --format says mcap; .* e.mcap"),
                             ("f.db3", "mcap", "its extension says sqlite3, --format says mcap"),
                             ("g.mcap", "sqlite3", "its extension says mcap, --format says sqlite3; .* g.db3"),

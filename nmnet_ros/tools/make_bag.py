@@ -7,8 +7,10 @@ pose, a PoseStamped and a /tf transform, stamped as images.txt; written with ``r
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -96,8 +98,9 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str | None = None, compr
              frames: range | None = None) -> int:
     """Write a sequence folder as a bag; returns the number of frames written.
 
-    ``mcap``/``sqlite3``: a ROS 2 bag directory (as ``ros2 bag record -o OUT``); ``ros1``: a .bag file. ``fmt`` None:
-    the one ``out``'s extension names (:func:`bag_format`).
+    ``out`` named ``.mcap`` or ``.db3``: that one ROS 2 storage file, which carries the bag's metadata itself
+    (``ros2 bag play run.mcap`` and Foxglove open it); another name: a ROS 2 bag folder (as ``ros2 bag record -o
+    OUT``); ``.bag``: a ROS 1 bag. ``fmt`` None: the one ``out``'s extension names (:func:`bag_format`).
     """
     out = Path(out)
     fmt = bag_format(out, fmt)
@@ -112,6 +115,7 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str | None = None, compr
     idx = list(seq.frames(frames))
     for note in seq.notes("they are written without a ground-truth pose"):  # as nmnet eval and train say them
         print(f"warning: {note}", file=sys.stderr)
+    staging: Path | None = None
     if ros1:
         from rosbags.rosbag1 import Writer as Writer1
 
@@ -121,18 +125,27 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str | None = None, compr
         from rosbags.rosbag2 import Writer as Writer2
 
         plugin = StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3
-        writer = Writer2(out, version=9, storage_plugin=plugin)
+        # rosbags writes a folder: one named run.mcap held run.mcap.mcap. A storage file's name gets the file alone,
+        # written in a hidden folder beside it and moved out whole (it carries the bag's metadata itself)
+        staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent)) if out.suffix in SUFFIX_FORMATS else None
+        writer = Writer2(staging / out.stem if staging else out, version=9, storage_plugin=plugin)
     try:
         with writer:  # on an exception rosbags aborts: a ROS 2 bag without metadata.yaml, which nothing reads
+            storage_file = None if ros1 else writer.storage.path
             written, interrupted = _write_frames(writer, ts, seq, idx, compressed, ros1)
             if not written:
                 raise BagError(f"{seq.root}: none of the {len(idx)} frames could be read; no bag written")
+        if staging:
+            os.replace(storage_file, out)
     except BaseException:  # an error, or an interrupt before any frame: no partial output in a rerun's way
         if out.is_dir():
             shutil.rmtree(out, ignore_errors=True)
         else:
             out.unlink(missing_ok=True)
         raise
+    finally:
+        if staging:
+            shutil.rmtree(staging, ignore_errors=True)
     if interrupted:
         raise Interrupted(written, len(idx))
     return written

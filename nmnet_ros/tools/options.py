@@ -234,9 +234,10 @@ def make_bag(p: argparse.ArgumentParser) -> None:
     """``nmnet make-bag``."""
     p.add_argument("seq", metavar="SEQ_DIR[:a-b]", help=f"sequence folder (optional frame range): {FOLDERS_READ}")
     p.add_argument("out_positional", nargs="?", type=Path, metavar="OUT", help="former place of --out")
-    p.add_argument("--out", type=Path, default=None, help="output: ROS 2 bag directory (mcap, sqlite3) or .bag file (ros1)")
-    p.add_argument("--format", choices=BAG_FORMATS, default=None, help="mcap or sqlite3: a ROS 2 bag folder; ros1: a "
-                   ".bag file (default: as --out's extension names it, .bag: ros1, .db3: sqlite3; else mcap)")
+    p.add_argument("--out", type=Path, default=None, help="output: a .mcap, .db3 or .bag file, or a ROS 2 bag folder "
+                   "(a name without those extensions)")
+    p.add_argument("--format", choices=BAG_FORMATS, default=None, help="the storage of a bag folder: mcap or sqlite3 "
+                   "(default: as --out's extension names it, .bag: ros1, .db3: sqlite3; else mcap)")
     p.add_argument("--compressed", action="store_true", help="sensor_msgs/CompressedImage instead of Image: JPEG, PNG "
                    "for 16-bit frames")
 
