@@ -592,6 +592,21 @@ def test_kalibr_camchain_and_euroc_sensor_yaml_read_as_the_camera_info_yaml(tmp_
             read_camera_yaml(bad)
 
 
+def test_a_calibration_that_is_not_yaml_is_named_on_one_line_with_where(tmp_path):
+    """A camera YAML (or EuRoC sensor.yaml) PyYAML cannot parse printed its four-line message, naming "<unicode
+    string>" and a caret; it is one line now, with the file, the line and the column."""
+    from nmnet_ros.io.asl import body_to_camera
+    from nmnet_ros.io.datasets import read_camera_yaml
+
+    bad = tmp_path / "camera.yaml"
+    bad.write_text("image_width: 752\n  image_height: 480\n")
+    says = f"{bad}: not valid YAML (line 2, column 15: mapping values are not allowed here)"
+    for read in (read_camera_yaml, body_to_camera):
+        with pytest.raises(DatasetError) as e:
+            read(bad)
+        assert str(e.value) == says
+
+
 ORB_SLAM_SETTINGS = """%YAML:1.0
 Camera.type: "PinHole"
 Camera.fx: 458.654

@@ -46,7 +46,7 @@ def test_sections_for_the_node_apply_in_file_order_and_others_are_ignored(tmp_pa
 
 @pytest.mark.parametrize(("text", "match"), [
     (None, "cannot read the parameters file"),
-    ("a: [1, 2\n", "not valid YAML"),
+    ("a: [1, 2\nb: 3\n", r"not valid YAML \(line 2, column 2: expected ',' or '\]', but got ':'\)$"),
     ("- 1\n- 2\n", "not a ROS 2 parameters file"),
     ("other_node:\n  ros__parameters:\n    k: 3\n", r"no ros__parameters for /\*\* or nmnet_node \(found: other_node\)"),
     ("/**:\n  ros__parameters:\n    max_keypoints: lots\n", "max_keypoints: 'lots' is a string, the setting an integer"),

@@ -121,6 +121,13 @@ def section_applies(name: str, node: str) -> bool:
     return match([t for t in name.split("/") if t], [t for t in node.split("/") if t])
 
 
+def yaml_problem(e: yaml.YAMLError) -> str:
+    """A YAML parser's error on one line, where and what (``line 2, column 5: mapping values are not allowed here``):
+    PyYAML's own message spans four lines and names "<unicode string>"."""
+    mark, what = getattr(e, "problem_mark", None), getattr(e, "problem", None) or str(e).splitlines()[0]
+    return f"line {mark.line + 1}, column {mark.column + 1}: {what}" if mark is not None else what
+
+
 def params_file_misses(path: Path, node: str) -> str | None:
     """What to say when a parameters file given to the node has no section for it (rclpy applies none of it, silently:
     a section keyed ``nmnet`` or another node's name); None when one applies or the file cannot be read (rcl said)."""
@@ -147,7 +154,7 @@ def read_params_file(path: Path, warn: Callable[[str], None] = print) -> dict:
     except OSError as e:
         raise ParamsFileError(f"{path}: cannot read the parameters file ({e.strerror or e})") from e
     except yaml.YAMLError as e:
-        raise ParamsFileError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from e
+        raise ParamsFileError(f"{path}: not valid YAML ({yaml_problem(e)})") from e
     values = {name: default for name, (default, _, _) in PARAMS.items()}
     for section in _sections(doc, path):
         for said in not_parameters(section):  # as the node says it (and as rclpy, ignores the name)

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..interface.params import yaml_problem
 from .trajectory import DatasetError, Trajectory, Unfit, pose_problem, poses_from_xyzq, read_table
 
 GROUND_TRUTH = Path("state_groundtruth_estimate0") / "data.csv"
@@ -39,7 +40,9 @@ def body_to_camera(sensor_yaml: Path) -> np.ndarray:
     try:
         data = yaml.safe_load(sensor_yaml.read_text())["T_BS"]["data"]
         T = np.array(data, np.float64).reshape(4, 4)
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as e:
+    except yaml.YAMLError as e:
+        raise DatasetError(f"{sensor_yaml}: not valid YAML ({yaml_problem(e)})") from e
+    except (OSError, KeyError, TypeError, ValueError) as e:
         raise DatasetError(f"{sensor_yaml}: no T_BS (the camera's pose on the body, 16 numbers) to place the camera "
                            f"on the ground truth's body ({type(e).__name__}: {e})") from e
     if not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-4):

@@ -14,6 +14,7 @@ import yaml
 
 from ..core.geometry import Camera, CameraError, essential_from_pose, relative_pose, sym_epipolar_sq
 from ..interface.caminfo import fit_camera
+from ..interface.params import yaml_problem
 from . import asl, kitti, tum
 from .trajectory import DatasetError, Trajectory, check_ros_time, check_seconds, read_table, read_tum, ros_seconds
 
@@ -60,7 +61,9 @@ def read_camera_yaml(path: Path, topic: str | None = None) -> Camera:
         raise
     except CameraError as e:
         raise DatasetError(f"{path}: {e}") from e
-    except (KeyError, TypeError, ValueError, yaml.YAMLError) as e:  # a missing field, a wrong count, words for numbers
+    except yaml.YAMLError as e:
+        raise DatasetError(f"{path}: not valid YAML ({yaml_problem(e)})") from e
+    except (KeyError, TypeError, ValueError) as e:  # a missing field, a wrong count, words for numbers
         raise DatasetError(f"{path}: malformed camera YAML ({type(e).__name__}: {e})") from e
 
 
