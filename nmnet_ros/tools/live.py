@@ -47,13 +47,19 @@ def require_ros() -> None:
         importlib.import_module(package)
 
 
-def check_domain() -> None:
-    """A ROS_DOMAIN_ID the user set is one ROS can use (a whole number from 0 to 232; empty: the default): rcl refuses
-    any other only once the player and the node start, in a traceback. Called before the output file is made."""
+def check_ros_environment() -> None:
+    """The ROS environment the user set lets the player and the node talk, checked before the output file is made:
+    a ROS_DOMAIN_ID ROS can use (a whole number from 0 to 232; empty: the default), else rcl refuses it once both
+    start, in a traceback; no ROS_AUTOMATIC_DISCOVERY_RANGE=OFF over DDS, where the two never find each other (60 s
+    of silence, then an error that cannot say why)."""
     said = os.environ.get("ROS_DOMAIN_ID", "").strip()
     if said and not (said.isdigit() and int(said) <= 232):
         raise ValueError(f"ROS_DOMAIN_ID={said!r}: a live replay runs on that domain, and ROS takes a whole number from "
                          "0 to 232; set one, or unset it for a random free one")
+    zenoh = "zenoh" in os.environ.get("RMW_IMPLEMENTATION", "")  # which ignores the variable
+    if os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip().upper() == "OFF" and not zenoh:
+        raise ValueError("ROS_AUTOMATIC_DISCOVERY_RANGE=OFF: a live replay's player and node are two processes that "
+                         "would never discover each other; unset it (the replay uses LOCALHOST) or set LOCALHOST")
 
 
 def _rclpy_type(msgtype: str):
