@@ -1074,3 +1074,26 @@ def test_a_live_replays_node_that_exits_or_never_subscribes_is_a_clear_error(ros
             player.wait_for_node(gone, timeout=60.0)
     finally:
         player.node.destroy_node()
+
+
+def test_an_rmw_the_wheels_lack_is_named_before_rclpy_ends_the_process(monkeypatch):
+    """RMW_IMPLEMENTATION=rmw_cyclonedds_cpp (a common line in a robot's shell) with the pip wheels, which bring Fast
+    DDS only: rcl ended nmnet_node at import with exit code 102 and its own line. The node now says what to do, exit 2;
+    under a sourced ROS 2 installation (AMENT_PREFIX_PATH) rcl finds the RMW itself, and the installed one passes."""
+    import os
+
+    from nmnet_ros.interface.dds import rmw_problem
+
+    env = {k: v for k, v in os.environ.items() if k != "AMENT_PREFIX_PATH"}
+    start = [sys.executable, "-c", "import sys; from nmnet_ros.ros.entry import node_main; sys.exit(node_main(['nmnet_node']))"]
+    done = subprocess.run(start, capture_output=True, text=True, cwd=ROOT, timeout=60,
+                          env={**env, "RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"})
+    assert done.returncode == 2 and "102" not in done.stderr, done.stderr
+    assert done.stderr.startswith("nmnet_node: error: RMW_IMPLEMENTATION=rmw_cyclonedds_cpp: not installed; the ROS 2 "
+                                  "wheels bring rmw_fastrtps_cpp only. Unset it for nmnet"), done.stderr
+    monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)
+    for said, problem in (("rmw_fastrtps_cpp", False), ("", False), ("rmw_zenoh_cpp", True), ("rmw.bogus", True)):
+        monkeypatch.setenv("RMW_IMPLEMENTATION", said)
+        assert (rmw_problem() is not None) == problem, said
+    monkeypatch.setenv("AMENT_PREFIX_PATH", "/opt/ros/kilted")  # a ROS 2 installation's RMWs are its libraries
+    assert rmw_problem() is None

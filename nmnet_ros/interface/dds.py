@@ -10,6 +10,8 @@ one when the publisher ran with :data:`LARGE_FRAMES_PROFILE` (a 16 MB segment), 
 
 from __future__ import annotations
 
+import importlib.util
+import os
 import re
 from pathlib import Path
 
@@ -17,6 +19,23 @@ from .imgconv import IMAGE_TYPES
 
 LARGE_FRAMES_PROFILE = Path(__file__).parents[1] / "fastdds_large_frames.xml"  # shipped at the package root
 LARGE_FRAME_BYTES = 512 * 1024  # above this, best effort over Fast DDS's default shared memory loses frames
+
+
+def rmw_problem() -> str | None:
+    """Why rclpy cannot start here, said before it is imported: an RMW_IMPLEMENTATION that the pip wheels do not carry
+    (they bring rmw_fastrtps_cpp only; rcl then ends the process at import with exit code 102). None where it is
+    installed, or under a sourced ROS 2 installation (AMENT_PREFIX_PATH), whose RMWs are libraries rcl finds itself."""
+    said = os.environ.get("RMW_IMPLEMENTATION", "").strip()
+    if not said or os.environ.get("AMENT_PREFIX_PATH"):
+        return None
+    try:
+        if importlib.util.find_spec(said) is not None:  # each wheel-installed RMW is also a Python package
+            return None
+    except (ImportError, ValueError):  # a name no module can have
+        pass
+    return (f"RMW_IMPLEMENTATION={said}: not installed; the ROS 2 wheels bring rmw_fastrtps_cpp only. Unset it for "
+            "nmnet (other nodes may keep theirs: DDS implementations talk across vendors on one domain), or run "
+            "under a ROS 2 installation that has it")
 
 
 def large_frames_advice() -> str:

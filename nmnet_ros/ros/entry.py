@@ -80,6 +80,11 @@ def node_main(args: list[str] | None = None) -> int:
               "nmnet_node --ros-args -p max_keypoints:=1000 -r image:=/camera/image_raw (see nmnet_node --help)",
               file=sys.stderr)
         return 2
+    from ..interface.dds import rmw_problem
+
+    if (problem := rmw_problem()) is not None:  # rcl would end the process on importing rclpy
+        print(f"nmnet_node: error: {problem}", file=sys.stderr)
+        return 2
     try:
         from .node import main
     except ImportError as e:

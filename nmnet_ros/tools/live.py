@@ -23,7 +23,7 @@ import numpy as np
 from ..core.geometry import Camera
 from ..core.tracks import TrackLengths
 from ..interface.caminfo import info_fields
-from ..interface.dds import LARGE_FRAMES_PROFILE
+from ..interface.dds import LARGE_FRAMES_PROFILE, rmw_problem
 from ..interface.imgconv import matches_of_cloud
 from ..interface.params import NODE_NAME
 from ..interface.posemsg import SIGMAS, estimate_of_message
@@ -48,10 +48,13 @@ def require_ros() -> None:
 
 
 def check_ros_environment() -> None:
-    """The ROS environment the user set lets the player and the node talk, checked before the output file is made:
-    a ROS_DOMAIN_ID ROS can use (a whole number from 0 to 232; empty: the default), else rcl refuses it once both
-    start, in a traceback; no ROS_AUTOMATIC_DISCOVERY_RANGE=OFF over DDS, where the two never find each other (60 s
-    of silence, then an error that cannot say why)."""
+    """The ROS environment the user set lets the player and the node talk, checked before rclpy is imported and the
+    output file made: an RMW_IMPLEMENTATION that is installed (else rcl ends the process on importing rclpy); a
+    ROS_DOMAIN_ID ROS can use (a whole number from 0 to 232; empty: the default), else rcl refuses it once both start,
+    in a traceback; no ROS_AUTOMATIC_DISCOVERY_RANGE=OFF over DDS, where the two never find each other (60 s of
+    silence, then an error that cannot say why)."""
+    if (problem := rmw_problem()) is not None:
+        raise ValueError(problem)
     said = os.environ.get("ROS_DOMAIN_ID", "").strip()
     if said and not (said.isdigit() and int(said) <= 232):
         raise ValueError(f"ROS_DOMAIN_ID={said!r}: a live replay runs on that domain, and ROS takes a whole number from "

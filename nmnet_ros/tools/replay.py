@@ -279,8 +279,8 @@ def replay_recording(args: argparse.Namespace) -> int:
     if args.live:
         from .live import check_ros_environment, live_topics, require_ros
 
+        check_ros_environment()  # before rclpy is imported: an RMW_IMPLEMENTATION not installed ends the process there
         require_ros()  # no ROS here: stop, naming the package, before the output file is made
-        check_ros_environment()
         chosen = live_topics(reader, **topics)  # likewise a ROS 1 bag, a topic it lacks
         if params["pose_estimator"] not in SELECTORS:
             raise ValueError(f"--pose-estimator {params['pose_estimator']}: the node runs {', '.join(SELECTORS)}; "
