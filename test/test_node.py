@@ -1097,3 +1097,20 @@ def test_an_rmw_the_wheels_lack_is_named_before_rclpy_ends_the_process(monkeypat
         assert (rmw_problem() is not None) == problem, said
     monkeypatch.setenv("AMENT_PREFIX_PATH", "/opt/ros/kilted")  # a ROS 2 installation's RMWs are its libraries
     assert rmw_problem() is None
+
+
+def test_the_demo_skips_its_live_part_where_the_ros_environment_keeps_the_node_from_running(monkeypatch):
+    """`make demo` in a shell with RMW_IMPLEMENTATION=rmw_cyclonedds_cpp ended in rcl's exit 102 before its offline
+    part; the live part is skipped now, saying why (as where rclpy is missing), and the offline part runs."""
+    from nmnet_ros.tools.demo import live_blocked
+
+    monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)
+    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+    monkeypatch.delenv("ROS_AUTOMATIC_DISCOVERY_RANGE", raising=False)
+    monkeypatch.delenv("RMW_IMPLEMENTATION", raising=False)
+    assert live_blocked() is None
+    for name, value in (("RMW_IMPLEMENTATION", "rmw_cyclonedds_cpp"), ("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF"),
+                        ("ROS_DOMAIN_ID", "abc")):
+        monkeypatch.setenv(name, value)
+        assert (live_blocked() or "").startswith(f"{name}="), name
+        monkeypatch.delenv(name)

@@ -5,7 +5,8 @@ CompressedImage + CameraInfo + ground-truth PoseStamped. First live: the bag is 
 ROS 2 topics into ``nmnet_node`` (its own process) and the node's outputs are recorded and
 scored; then offline, frame by frame, next to the classic SIFT + ratio + MAGSAC++ pipeline on the
 same frames, with the plots. Everything lands in one folder. Without ROS 2 (no rclpy: arm64 with no
-ROS installation sourced) the live part is skipped with a note saying how to get it.
+ROS installation sourced), or in a ROS environment the node cannot run in (an RMW_IMPLEMENTATION the wheels lack),
+the live part is skipped with a note saying what to do.
 """
 
 from __future__ import annotations
@@ -17,12 +18,17 @@ from ..ros.entry import ros_missing
 from . import options, replay
 
 
-def _without_ros() -> str | None:
-    """Why the live part cannot run here (rclpy or a message package missing), or None."""
-    from .live import require_ros
+def live_blocked() -> str | None:
+    """Why the live part cannot run here, or None: the ROS environment (an RMW_IMPLEMENTATION not installed, whose
+    rclpy import would end the demo, a ROS_DOMAIN_ID ROS cannot use, discovery off), rclpy or a message package
+    missing. The offline part runs either way."""
+    from .live import check_ros_environment, require_ros
 
     try:
+        check_ros_environment()
         require_ros()
+    except ValueError as e:
+        return str(e)
     except ImportError as e:
         return ros_missing(e)
     return None
@@ -38,7 +44,7 @@ def main(args: argparse.Namespace) -> int:
     live = out / "nmnet_live.mcap"
     if live.is_file() and written_here(live):  # an earlier demo's: not left beside this one's other outputs
         live.unlink()
-    if (missing := _without_ros()) is not None:
+    if (missing := live_blocked()) is not None:
         print(f"1/2 live: skipped: {missing}")
     else:
         print(f"1/2 live: playing {args.bag} at {args.rate}x into nmnet_node -> {live}")
