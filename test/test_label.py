@@ -48,7 +48,8 @@ def test_labels_of_a_reconstruction_agree_with_the_real_ground_truth(tmp_path, s
 
 def test_a_bag_is_labelled_with_its_camera_info_and_a_standing_camera_is_refused(tmp_path):
     """A bag (as replay reads it) gives its frames and its camera_info; a standing camera (EuRoC's MAV on the
-    ground) is refused with the reason and what to do, and leaves no output; so is a folder of someone else's."""
+    ground) or too few keyframes is refused with the reason and what to do, and leaves no output; so is a folder of
+    someone else's."""
     bag = tmp_path / "run"
     assert make_bag(data_dir("kitti-07"), bag, "mcap", frames=range(60, 80)) == 20
     r = nmnet("label", str(bag), str(tmp_path / "from_bag"))
@@ -64,6 +65,11 @@ def test_a_bag_is_labelled_with_its_camera_info_and_a_standing_camera_is_refused
     (unposed / "images").symlink_to(tmp_path / "from_bag" / "images")
     r = nmnet("label", str(bag), str(tmp_path / "checked"), "--truth", str(unposed))
     assert r.returncode == 2 and "has no groundtruth.txt" in r.stderr and not (tmp_path / "checked").exists(), r.stderr
+    few = tmp_path / "few.mcap"  # 3 keyframes: "only 3 of 3 registered: the frames overlap too little", after COLMAP
+    assert make_bag(data_dir("kitti-07"), few, frames=range(60, 63)) == 3
+    r = nmnet("label", str(few), str(tmp_path / "from_few"))
+    assert r.returncode == 2 and "reconstructing" not in r.stderr and not (tmp_path / "from_few").exists(), r.stderr
+    assert f"{few}: 3 keyframe(s), and a reconstruction needs at least 10; give a longer recording" in r.stderr
     r = nmnet("label", str(data_dir("euroc-v101-cam0")), str(tmp_path / "still"))
     assert r.returncode == 2 and "barely moves" in r.stderr and "record while the robot moves" in r.stderr, r.stderr
     assert not (tmp_path / "still").exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

@@ -27,7 +27,7 @@ from ..io.bags import BAG_SUFFIXES, BagReader, read_frames
 from ..io.datasets import Sequence, epipolar_labels, read_camera_yaml, write_camera_yaml
 from ..io.outputs import not_an_input, output_file, output_folder, write_json, written_here
 from ..io.pairs import parse_seq_spec
-from ..io.reconstruction import STAGES, ReconstructionError, quality_problem, reconstruct
+from ..io.reconstruction import MIN_REGISTERED, STAGES, ReconstructionError, quality_problem, reconstruct
 from . import fleet
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
@@ -236,9 +236,9 @@ def label_recording(args: argparse.Namespace) -> int:
                 stamps.append(stamp)
                 names.append(name)
                 bar.update(1)
-        if len(names) < 2:
-            raise ReconstructionError(f"{source}: {len(names)} keyframe(s); give a longer recording or a shorter "
-                                      "--interval")
+        if len(names) < MIN_REGISTERED:  # fewer never pass quality_problem: said before the reconstruction's work
+            raise ReconstructionError(f"{source}: {len(names)} keyframe(s), and a reconstruction needs at least "
+                                      f"{MIN_REGISTERED}; give a longer recording or a shorter --interval")
         if np.median(parallax) < MIN_PARALLAX_PX:
             raise ReconstructionError(
                 f"{source}: the camera barely moves between keyframes (median parallax {np.median(parallax):.2f} px, "
