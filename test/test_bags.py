@@ -282,13 +282,15 @@ def test_a_folder_of_ros1_bag_parts_replays_as_one_recording(tmp_path):
     assert r.returncode == 0 and s["processed"] == 9 and s["scored_pairs"] == 8, (r.stderr, s)
 
 
-@pytest.mark.parametrize("fmt, out, sig", [("mcap", "bag", signal.SIGINT), ("ros1", "bag.bag", signal.SIGTERM)],
-                         ids=["mcap-SIGINT", "ros1-SIGTERM"])
+@pytest.mark.parametrize("fmt, out, sig", [("mcap", "bag", signal.SIGINT), ("ros1", "bag.bag", signal.SIGTERM),
+                                           ("mcap", "bag.mcap", signal.SIGTERM)],
+                         ids=["mcap-SIGINT", "ros1-SIGTERM", "mcap-file-SIGTERM"])
 def test_an_interrupted_make_bag_leaves_a_readable_bag_of_the_frames_written(tmp_path, fmt, out, sig):
     """Ctrl-C (or SIGTERM) during make-bag: the bag is closed with the frames written so far, readable, exit 130. It
-    removed the whole output (SIGTERM: left a ROS 2 bag without metadata.yaml, which nothing reads)."""
+    removed the whole output (SIGTERM: left a ROS 2 bag without metadata.yaml, which nothing reads). A single .mcap
+    is written in a hidden folder beside it and moved out whole, the folder then removed."""
     out = tmp_path / out
-    written = (out / "bag.mcap") if fmt == "mcap" else out
+    written = {"bag": out / "bag.mcap", "bag.bag": out, "bag.mcap": tmp_path / "staging.mcap"}[out.name]
     with open(tmp_path / "log", "w") as log:
         proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", "make-bag", str(data_dir("kitti-07")), "--out", str(out),
                                  "--format", fmt], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True,
@@ -296,6 +298,8 @@ def test_an_interrupted_make_bag_leaves_a_readable_bag_of_the_frames_written(tmp
         t_end = time.monotonic() + 120
         while not (written.exists() and written.stat().st_size > 4e6) and time.monotonic() < t_end and proc.poll() is None:
             time.sleep(0.05)  # a few frames are in the file
+            if out.suffix == ".mcap":  # the file being written, in its hidden folder
+                written = next(tmp_path.glob(".bag.mcap.*/bag/bag.mcap"), written)
         assert proc.poll() is None, f"make-bag ended before it could be interrupted:\n{(tmp_path / 'log').read_text()}"
         proc.send_signal(sig)
         proc.wait(60)
@@ -306,6 +310,7 @@ def test_an_interrupted_make_bag_leaves_a_readable_bag_of_the_frames_written(tmp
     assert counts == [frames] * 3, counts
     assert proc.returncode == 130 and "Traceback" not in said, said
     assert 0 < frames < 160 and f"interrupted: wrote {frames} of 160 frames to {out}, a readable bag" in said, said
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["log", out.name]), list(tmp_path.iterdir())
 
 
 def test_a_folder_of_images_given_as_a_bag_says_how_to_replay_or_score_it(tmp_path):
