@@ -325,7 +325,7 @@ def test_a_folder_of_images_given_as_a_bag_says_how_to_replay_or_score_it(tmp_pa
     (kitti / "calib.txt").write_text("P0: 1 0 0 0 0 1 0 0 0 0 1 0\n")
     for folder in (src, kitti):
         with pytest.raises(BagError, match=f"{folder}: directory holds no .mcap, .db3 or .bag file; it is a folder of "
-                                           f"images with their poses: `nmnet make-bag {folder} OUT.mcap` writes it as "
+                                           f"images with their poses: `nmnet make-bag {folder} --out OUT.mcap` writes it as "
                                            f"a bag to replay, `nmnet eval {folder}` scores its pairs directly"):
             BagReader(folder)
 

@@ -121,8 +121,8 @@ def _images_folder_hint(path: Path) -> str:
     """What to do with a folder of images given as a bag (a sequence folder, a EuRoC or KITTI download), or ''."""
     if not is_sequence_folder(path):
         return ""
-    return (f"; it is a folder of images with their poses: `nmnet make-bag {path} OUT.mcap` writes it as a bag to "
-            f"replay, `nmnet eval {path}` scores its pairs directly")
+    return (f"; it is a folder of images with their poses: `nmnet make-bag {path} --out OUT.mcap` writes it as a "
+            f"bag to replay, `nmnet eval {path}` scores its pairs directly")
 
 
 SIGNATURES = {"mcap": b"\x89MCAP0\r\n", "db3": b"SQLite format 3\0", "bag": b"#ROSBAG V2.0",  # how each begins
