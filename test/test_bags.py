@@ -1733,6 +1733,20 @@ def test_a_ros_environment_without_a_way_to_talk_stops_a_live_replay_before_its_
         assert not (tmp_path / "o.mcap").exists()
 
 
+def test_only_the_discovery_range_rcl_reads_as_off_is_refused(monkeypatch):
+    """rcl takes ROS_AUTOMATIC_DISCOVERY_RANGE=OFF exactly; "off" or " OFF" it warns of and reads as LOCALHOST, where a
+    live replay works: those are not refused."""
+    from nmnet_ros.tools.live import check_ros_environment
+
+    for value, refused in (("OFF", True), ("off", False), (" OFF", False), ("LOCALHOST", False), ("SUBNET", False)):
+        monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", value)
+        if refused:
+            with pytest.raises(ValueError, match="ROS_AUTOMATIC_DISCOVERY_RANGE=OFF"):
+                check_ros_environment()
+        else:
+            check_ros_environment()
+
+
 def test_replay_runs_with_the_nodes_parameters_file(raw_bag, tmp_path):
     """--params-file: the settings the node runs (config/nmnet.yaml's form); an option given overrides the file;
     a name the node does not have is pointed out and ignored; a value the node would refuse stops the replay

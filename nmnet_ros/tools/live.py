@@ -60,7 +60,7 @@ def check_ros_environment() -> None:
         raise ValueError(f"ROS_DOMAIN_ID={said!r}: a live replay runs on that domain, and ROS takes a whole number from "
                          "0 to 232; set one, or unset it for a random free one")
     zenoh = "zenoh" in os.environ.get("RMW_IMPLEMENTATION", "")  # which ignores the variable
-    if os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip().upper() == "OFF" and not zenoh:
+    if os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "OFF" and not zenoh:  # rcl: "off" is invalid, so LOCALHOST
         raise ValueError("ROS_AUTOMATIC_DISCOVERY_RANGE=OFF: a live replay's player and node are two processes that "
                          "would never discover each other; unset it (the replay uses LOCALHOST) or set LOCALHOST")
 
