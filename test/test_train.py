@@ -82,8 +82,9 @@ def test_train_few_steps_then_resume(tmp_path):
     s = train(spec_train, spec_val, tmp_path, cfg, resume=True, cache_dir=tmp_path / "cache", log=said.append)
     assert s["train_pairs"] == 1 and s["val_pairs"] == 1 and "does not exist yet, so this is a new run" in said[0]
     assert not any("warning" in line for line in said), said  # frames 0-1 and 2-3: validation apart from training
-    assert any(line.startswith("  train: strecha-fountain-p11:0-1: 1 pairs, mean inlier ratio") and "ready in" in line
-               for line in said), said
+    for role, frames in (("train", "0-1"), ("val", "2-3")):  # the validation folder was "train: ..." too
+        assert any(line.startswith(f"  {role}: strecha-fountain-p11:{frames}: 1 pairs, mean inlier ratio") and
+                   "ready in" in line for line in said), said
     model = load_model(tmp_path / "best.pt")
     assert not model.training
     best = (tmp_path / "best.pt").read_bytes()

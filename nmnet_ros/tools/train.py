@@ -54,11 +54,12 @@ DEFAULT_CONFIG: dict = {
 MAX_TURN_DEG = 60.0  # --turn-deg above this would turn most views out of the image
 
 
-def _labelled_pairs(specs: list[str], cache: FeatureCache, c: dict, log: Callable[[str], None]) -> list[PairData]:
+def _labelled_pairs(specs: list[str], cache: FeatureCache, c: dict, log: Callable[[str], None],
+                    role: str) -> list[PairData]:
     """The pairs of ``specs`` with this run's gaps and labels, those with almost no inliers dropped; a folder without
-    pairs is a warning (another may have some)."""
+    pairs is a warning (another may have some). ``role`` (train, val) names the folders' lines in the log."""
     return load_pairs(specs, tuple(c["gaps"]), cache, min_inliers=c["min_inliers"], label_threshold=c["label_threshold"],
-                      skip_empty=True, log=lambda line: log(f"  {line}"), tool="train", max_view_angle=c["max_view_angle"])
+                      skip_empty=True, log=lambda line: log(f"  {line}"), tool=role, max_view_angle=c["max_view_angle"])
 
 
 PARALLEL_FRAMES = 32  # frames to compute before Ray's start (seconds) pays; fewer: the loaders compute them in turn
@@ -470,12 +471,12 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     cache = FeatureCache(make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]}), cache_dir)
     prepare_features([*train_specs, *val_specs], cache, c, log)
     log("loading training pairs")
-    groups = [_labelled_pairs([spec], cache, c, log) for spec in train_specs]
+    groups = [_labelled_pairs([spec], cache, c, log, "train") for spec in train_specs]
     train_pairs = [p for g in groups for p in g]
     if not train_pairs:  # before the validation folders' features
         raise ValueError("no training pairs: check the sequence folders and frame ranges")
     log("loading validation pairs")
-    val_pairs = _labelled_pairs(val_specs, cache, c, log)
+    val_pairs = _labelled_pairs(val_specs, cache, c, log, "val")
     if not val_pairs:  # trained, then failed with '[Errno 2] best.pt' at the end of the first epoch (val F nan)
         raise ValueError("no validation pairs: check the --val folders and frame ranges (validation picks best.pt "
                          "and calibrates the score threshold)")
