@@ -55,7 +55,7 @@ MAX_TURN_DEG = 60.0  # --turn-deg above this would turn most views out of the im
 
 
 def _labelled_pairs(specs: list[str], cache: FeatureCache, c: dict, log: Callable[[str], None],
-                    role: str) -> list[PairData]:
+                    role: str = "train") -> list[PairData]:
     """The pairs of ``specs`` with this run's gaps and labels, those with almost no inliers dropped; a folder without
     pairs is a warning (another may have some). ``role`` (train, val) names the folders' lines in the log."""
     return load_pairs(specs, tuple(c["gaps"]), cache, min_inliers=c["min_inliers"], label_threshold=c["label_threshold"],
@@ -471,7 +471,7 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
     cache = FeatureCache(make_detector(c["detector"], {"max_keypoints": c["max_keypoints"]}), cache_dir)
     prepare_features([*train_specs, *val_specs], cache, c, log)
     log("loading training pairs")
-    groups = [_labelled_pairs([spec], cache, c, log, "train") for spec in train_specs]
+    groups = [_labelled_pairs([spec], cache, c, log) for spec in train_specs]
     train_pairs = [p for g in groups for p in g]
     if not train_pairs:  # before the validation folders' features
         raise ValueError("no training pairs: check the sequence folders and frame ranges")
