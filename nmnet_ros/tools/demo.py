@@ -22,10 +22,9 @@ def live_blocked() -> str | None:
     """Why the live part cannot run here, or None: the ROS environment (an RMW_IMPLEMENTATION not installed, whose
     rclpy import would end the demo, a ROS_DOMAIN_ID ROS cannot use, discovery off), rclpy or a message package
     missing. The offline part runs either way."""
-    from .live import check_ros_environment, require_ros
+    from .live import require_ros
 
     try:
-        check_ros_environment()
         require_ros()
     except ValueError as e:
         return str(e)

@@ -41,8 +41,11 @@ def require_ros() -> None:
     """Import what the live mode runs on (player and node); a missing package raises ImportError naming it.
 
     Called before anything is written, so a machine without ROS leaves no empty output behind, and a missing
-    message package is named here rather than by a node that exits before subscribing.
+    message package is named here rather than by a node that exits before subscribing. The environment is checked
+    first (:func:`check_ros_environment`, a ValueError): an RMW_IMPLEMENTATION not installed ends the process at
+    rclpy's import.
     """
+    check_ros_environment()
     for package in LIVE_ROS_PACKAGES:
         importlib.import_module(package)
 

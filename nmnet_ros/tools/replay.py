@@ -277,10 +277,9 @@ def replay_recording(args: argparse.Namespace) -> int:
     params = node_params(args)  # a bad parameters file stops here, naming it
     topics = {"image_topic": args.image_topic, "info_topic": args.info_topic}
     if args.live:
-        from .live import check_ros_environment, live_topics, require_ros
+        from .live import live_topics, require_ros
 
-        check_ros_environment()  # before rclpy is imported: an RMW_IMPLEMENTATION not installed ends the process there
-        require_ros()  # no ROS here: stop, naming the package, before the output file is made
+        require_ros()  # no ROS here, or an environment it cannot run in: stop, naming it, before the output file is made
         chosen = live_topics(reader, **topics)  # likewise a ROS 1 bag, a topic it lacks
         if params["pose_estimator"] not in SELECTORS:
             raise ValueError(f"--pose-estimator {params['pose_estimator']}: the node runs {', '.join(SELECTORS)}; "
