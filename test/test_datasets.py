@@ -497,10 +497,11 @@ def test_a_missing_truncated_or_empty_image_is_named_not_read_in_part(tmp_path, 
     said = capsys.readouterr().err
     assert [f"warning: frame {i}: skipped, {seq.paths[i]}: cannot" in said for i in range(5)] == [False, True, True, True, False]
     assert len(list(BagReader(outs / "bag").messages({TOPICS["image"]}))) == 2
-    for fmt, out in (("mcap", outs / "none"), ("ros1", outs / "none.bag")):
+    for fmt, out in (("mcap", outs / "none"), ("ros1", outs / "none.bag"), ("mcap", outs / "none.mcap")):
         with pytest.raises(BagError, match=f"{tmp_path}: none of the 3 frames could be read; no bag written"):
             make_bag(tmp_path, out, fmt, frames=range(1, 4))
         assert not out.exists()
+    assert sorted(p.name for p in outs.iterdir()) == ["bag"]  # a single file's hidden writing folder went with it
 
 
 def test_missing_images_txt_and_bad_yaml(tmp_path):

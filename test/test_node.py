@@ -1092,7 +1092,8 @@ def test_an_rmw_the_wheels_lack_is_named_before_rclpy_ends_the_process(monkeypat
     assert done.stderr.startswith("nmnet_node: error: RMW_IMPLEMENTATION=rmw_cyclonedds_cpp: not installed; the ROS 2 "
                                   "wheels bring rmw_fastrtps_cpp only. Unset it for nmnet"), done.stderr
     monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)
-    for said, problem in (("rmw_fastrtps_cpp", False), ("", False), ("rmw_zenoh_cpp", True), ("rmw.bogus", True)):
+    for said, problem in (("rmw_fastrtps_cpp", False), ("", False), ("rmw_zenoh_cpp", True), ("rmw.bogus", True),
+                            ("rmw_cyclonedds_cpp.x", True), (".x", True)):  # names find_spec raises on
         monkeypatch.setenv("RMW_IMPLEMENTATION", said)
         assert (rmw_problem() is not None) == problem, said
     monkeypatch.setenv("AMENT_PREFIX_PATH", "/opt/ros/kilted")  # a ROS 2 installation's RMWs are its libraries
