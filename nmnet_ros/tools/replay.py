@@ -333,12 +333,10 @@ def replay_recording(args: argparse.Namespace) -> int:
 def live_node_args(params: dict) -> list[str]:
     """The node's ``--ros-args`` for a live replay: ``-p`` for each of ``params`` (:func:`node_params`) that is not
     its default, so the node runs with what the offline replay runs with. Not the --params-file itself: rcl would
-    apply its ``/robot/nmnet_node`` section to a node in /robot only, and the replay's node is at the root."""
-    def value(v: object) -> str:  # as rcl reads it (YAML): a string quoted, so a path stays one
-        return str(v).lower() if isinstance(v, bool) else json.dumps(v) if isinstance(v, str) else str(v)
-
+    apply its ``/robot/nmnet_node`` section to a node in /robot only, and the replay's node is at the root. Values
+    are written as config/nmnet.yaml writes them (JSON is YAML rcl reads): a string quoted, so a path stays one."""
     return [a for name, (default, _, _) in PARAMS.items() if params[name] != default
-            for a in ("-p", f"{name}:={value(params[name])}")]
+            for a in ("-p", f"{name}:={json.dumps(params[name])}")]
 
 
 def live_summary(stats: dict, wall: float, scores: dict, tracks: dict, params: dict, interrupted: bool = False) -> dict:
