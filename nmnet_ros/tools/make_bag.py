@@ -131,7 +131,7 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str | None = None, compr
         writer = Writer2(staging / out.stem if staging else out, version=9, storage_plugin=plugin)
     try:
         with writer:  # on an exception rosbags aborts: a ROS 2 bag without metadata.yaml, which nothing reads
-            storage_file = None if ros1 else writer.storage.path
+            storage_file = writer.storage.path if staging else None  # rosbags names it after its folder
             written, interrupted = _write_frames(writer, ts, seq, idx, compressed, ros1)
             if not written:
                 raise BagError(f"{seq.root}: none of the {len(idx)} frames could be read; no bag written")
