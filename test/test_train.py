@@ -267,6 +267,7 @@ def test_validation_on_training_frames_is_warned_before_any_features():
                                                      ("max_view_angle", 0.0, "--max-view-angle must be in"),
                                                      ("max_view_angle", 200.0, "--max-view-angle must be in"),
                                                      ("ess_loss", -0.1, "--ess-loss is a weight >= 0"),
+                                                     ("num_corr", 7, "--num-corr must be at least k = 8"),
                                                      ("lr", -1e-3, "--lr is Adam's step size, a number >= 0"),
                                                      ("lr", float("nan"), "--lr is Adam's step size, a number >= 0")])
 def test_option_out_of_range_is_a_clear_error(tmp_path, key, value, match):

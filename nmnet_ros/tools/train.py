@@ -30,6 +30,7 @@ import torch
 from ..core.detectors import make_detector
 from ..core.geometry import apply_homography, eight_point_rows, essential_from_pose, homography_jacobian
 from ..core.metrics import prf
+from ..core.model import DEFAULT_CONFIG as NETWORK_CONFIG
 from ..core.model import NEIGHBORS, NMNet, WeightsError, load_model, network_input
 from ..core.neighbors import mine_neighbors
 from ..core.settings import FRONTEND_DEFAULTS
@@ -375,6 +376,10 @@ def _checked_neighbors(c: dict, train_specs: list[str]) -> str:
     except (RuntimeError, AssertionError) as e:
         first = (str(e).strip() or type(e).__name__).splitlines()[0].split(". ")[0][:200]  # MPS's runs to 2000 chars
         raise ValueError(f"--device {c['device']}: torch cannot use it ({first}); use cpu or cuda (cuda:N for GPU N)") from e
+    if c["num_corr"] < NETWORK_CONFIG["k"]:  # fewer: each match's neighbours padded with itself
+        raise ValueError(f"--num-corr must be at least k = {NETWORK_CONFIG['k']} (each correspondence's k neighbours, "
+                         f"itself first, are mined among the sample's; default {TRAIN_DEFAULTS['num_corr']}), "
+                         f"got {c['num_corr']}")
     if not 0 <= c["lr"] < math.inf:  # Adam refused a negative one only after the features
         raise ValueError(f"--lr is Adam's step size, a number >= 0 (default {DEFAULT_CONFIG['lr']:g}; 0 keeps --init's "
                          f"weights: validation and calibration only), got {c['lr']}")
