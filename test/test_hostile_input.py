@@ -267,3 +267,21 @@ def test_a_training_folder_with_a_users_file_of_trains_names_is_refused_and_chec
     torch.save({"state_dict": {}, "written_by": written_by()}, tmp_path / "ours.pt")
     torch.save({"state_dict": {}}, tmp_path / "theirs.pt")
     assert written_here(tmp_path / "ours.pt") and not written_here(tmp_path / "theirs.pt")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("closed", [("stdout",), ("stdout", "stderr")])
+def test_a_reader_that_goes_away_leaves_the_tool_to_write_its_files(tmp_path, closed):
+    """``nmnet eval ... --json r.json | head -1``: eval prints its tables before writing the JSON and the plot; the
+    closed pipe ended it at the next line ("error: [Errno 32] Broken pipe", exit 2, nothing written)."""
+    out = tmp_path / "r.json"
+    proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", "eval", f"{data_dir('strecha-fountain-p11')}:0-3",
+                             "--gaps", "1", "--methods", "ratio+magsac", "--json", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT)
+    for name in closed:  # the reader is gone before the tool's first line
+        getattr(proc, name).close()
+    said = b"" if "stderr" in closed else proc.stderr.read()
+    assert proc.wait(timeout=600) == 0, said
+    assert b"Broken pipe" not in said and b"Exception ignored" not in said
+    assert json.loads(out.read_text())["methods"]["ratio+magsac"]
+    assert out.with_suffix(".png").is_file()

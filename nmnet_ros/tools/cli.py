@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 import threading
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import TextIO
 
 from ..ros.entry import ros_missing, version
 from . import options
@@ -72,6 +74,50 @@ def interrupts_between_steps() -> Iterator[Callable[[], bool]]:
         yield lambda: bool(signals)
 
 
+class ReaderMayLeave:
+    """stdout or stderr whose reader may go away (``nmnet eval ... | head``). The first write that finds the pipe
+    closed points the stream at the null device, so the tool finishes and writes its files instead of ending there
+    with a broken pipe."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._to_null()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._to_null()
+
+    def _to_null(self) -> None:
+        null = os.open(os.devnull, os.O_WRONLY)  # the stream's buffer is flushed there, at exit too
+        os.dup2(null, self._stream.fileno())
+        os.close(null)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._stream, name)
+
+
+@contextmanager
+def readers_may_leave() -> Iterator[None]:
+    """Within the block stdout and stderr are :class:`ReaderMayLeave` (a stream that is not there stays so)."""
+    saved = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = (s if s is None else ReaderMayLeave(s) for s in saved)
+    try:
+        yield
+    finally:
+        for stream in (sys.stdout, sys.stderr):  # what is still buffered: a reader gone since is found here, not at exit
+            if stream is not None:
+                stream.flush()
+        sys.stdout, sys.stderr = saved
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Parser with every subcommand's options (a subcommand's module is imported only when it runs)."""
     parser = argparse.ArgumentParser(prog="nmnet", description="NM-Net visual-odometry front end: tools.")
@@ -94,6 +140,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         print(f"nmnet: error: name a command: {', '.join(SUBCOMMANDS)} (nmnet COMMAND --help)", file=sys.stderr)
         return 2
+    with readers_may_leave():
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """``args``' tool, its errors as one line each and an exit code."""
     try:
         with sigterm_as_interrupt():  # the tools close their outputs (replay, make-bag) or calibrate (train) on either
             return importlib.import_module(args._module).main(args)
