@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import signal
 import subprocess
@@ -613,20 +614,41 @@ def test_an_interrupted_live_replay_sums_up_what_it_recorded(tmp_path, sig):
     assert summary["processed"] - 1 <= counts.get("/nmnet_node/relative_pose", 0) <= summary["processed"]
 
 
+def children_of(parent: int) -> list[int]:
+    """The pids of ``parent``'s child processes (Linux /proc)."""
+    children = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:  # the field after the command's closing parenthesis: state, then the parent's pid
+            if int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1]) == parent:
+                children.append(int(pid))
+        except OSError:  # a process that ended meanwhile
+            pass
+    return children
+
+
+def test_a_live_replay_whose_node_dies_before_it_subscribes_leaves_an_empty_readable_output(tmp_path):
+    """The node ending while it starts (killed here, as the out-of-memory killer would): the replay names its exit
+    code, plays nothing, exits 1 and closes its output empty and readable."""
+    out = tmp_path / "live.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "nmnet_ros.tools.cli", "replay", str(SAMPLE_BAG), "--out", str(out),
+                             "--live"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    t_end = time.monotonic() + 120
+    while not (children := children_of(proc.pid)) and proc.poll() is None and time.monotonic() < t_end:
+        time.sleep(0.01)  # the node takes seconds to import torch and rclpy: killed long before it subscribes
+    assert children, "the replay started no node"
+    os.kill(children[0], signal.SIGKILL)
+    text = proc.communicate(timeout=120)[0]
+    assert proc.returncode == 1 and "error: nmnet_node exited with code -9 before it subscribed" in text, text
+    assert "Traceback" not in text
+    assert read_output(out) == {}
+
+
 def test_a_live_replay_whose_node_dies_says_so_and_stops(tmp_path):
     """The node killed mid-replay (as the out-of-memory killer does): the replay stops playing, names the node's exit
     code, sums up what was recorded and exits 1. It went on playing into nothing and reported the rest of the bag
     as frames "not received", exit 0."""
-    import os
-
     with live_replay_playing(tmp_path, 4) as proc:
-        children = []
-        for pid in filter(str.isdigit, os.listdir("/proc")):
-            try:  # the field after the command's closing parenthesis: state, then the parent's pid
-                if int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1]) == proc.pid:
-                    children.append(int(pid))
-            except OSError:  # a process that ended meanwhile
-                pass
+        children = children_of(proc.pid)
         assert len(children) == 1, children
         os.kill(children[0], signal.SIGKILL)
     text = (tmp_path / "replay.log").read_text()
@@ -640,8 +662,6 @@ def test_two_live_replays_on_one_domain_do_not_hear_each_other(tmp_path):
     """Two live replays at once on the same ROS_DOMAIN_ID (two runs that drew the same random domain, or a domain the
     user set): each records only its own node's results. They shared /live/image, /nmnet_node/matches and
     /diagnostics, so each node took the other's frames too (a CI run: 3 frames played, 6 processed, 9 received)."""
-    import os
-
     from mcap.reader import make_reader
 
     from .rosharness import unique_domain
@@ -1717,8 +1737,6 @@ def test_a_ros_environment_without_a_way_to_talk_stops_a_live_replay_before_its_
     """ROS_DOMAIN_ID=abc (or 300) ended `nmnet replay --live` in rcl's traceback, after the output file was made;
     ROS_AUTOMATIC_DISCOVERY_RANGE=OFF in 60 s of silence, then "discovery failed, or the node is still starting",
     leaving an empty output; an RMW_IMPLEMENTATION the wheels lack in rcl's exit 102 on importing rclpy."""
-    import os
-
     for name, value, says in [("ROS_DOMAIN_ID", domain, f"ROS_DOMAIN_ID='{domain}': a live replay runs on that domain, "
                                "and ROS takes a whole number") for domain in ("abc", "300", "-1")] + [
             ("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF", "ROS_AUTOMATIC_DISCOVERY_RANGE=OFF: a live replay's player and "
