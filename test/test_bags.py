@@ -431,6 +431,9 @@ def test_an_output_that_would_overwrite_an_input_or_a_recording_is_refused_befor
                        (("--out", str(gt), "--gt", str(gt)), f"--out {gt} is an input of this command"),
                        (("--out", str(other)), "exists and was not written by nmnet"),
                        (("--out", out, "--json", out), "is also --out"),
+                       (("--out", out, "--json", str(tmp_path / "o_errors.png")), "is also the errors plot"),
+                       (("--out", out, "--plots", str(tmp_path / "p"), "--json", str(tmp_path / "p" / "matches.png")),
+                        "is also the matches plot"),
                        (("--out", out, "--json", str(tmp_path)), "is a folder"),
                        (("--out", out, "--plots", str(other)), "is a file: give a folder")]:
         r = nmnet("replay", str(bag), *args, "--no-progress")

@@ -216,21 +216,24 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
     after the whole replay. Beside ``--out`` the plots carry its name, so replays of several bags into one folder
     (``--out results/a.mcap``, ``--out results/b.mcap``) keep each one's plots.
     """
-    if args.json is not None and args.json.resolve() == args.out.resolve():
-        raise ValueError(f"--json {args.json} is also --out: give the summary its own file")
     not_a_folder(args.out, "--out", "nmnet.mcap")  # the rest of --out's checks come as the output is opened
     not_an_input(args.out, "--out", inputs)
     if args.out.suffix != ".mcap" and not args.out.exists():  # an existing file: McapOutput says whose it is
         raise ValueError(f"--out {args.out}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know "
                          f"by its .mcap suffix: give {args.out.with_suffix('.mcap')}")
-    output_file(args.json, "--json", "summary.json", inputs)
     if args.plots is not None:
         output_folder(args.plots, "--plots", "the plots", inputs, [f"{name}.png" for name in PLOTS])
-        return args.plots, ""
-    prefix = f"{args.out.stem}_"  # in --out's folder, whose writability is checked as the output is opened
-    for name in PLOTS:
-        not_someone_elses(args.out.parent / f"{prefix}{name}.png", "the plot")
-    return args.out.parent, prefix
+        folder, prefix = args.plots, ""
+    else:
+        folder, prefix = args.out.parent, f"{args.out.stem}_"  # --out's folder: checked as the output is opened
+        for name in PLOTS:
+            not_someone_elses(folder / f"{prefix}{name}.png", "the plot")
+    if args.json is not None:  # one would be written over the other
+        for other, what in [(args.out, "--out"), *((folder / f"{prefix}{n}.png", f"the {n} plot") for n in PLOTS)]:
+            if args.json.resolve() == other.resolve():
+                raise ValueError(f"--json {args.json} is also {what}: give the summary its own file, e.g. summary.json")
+    output_file(args.json, "--json", "summary.json", inputs)
+    return folder, prefix
 
 
 def main(args: argparse.Namespace) -> int:
