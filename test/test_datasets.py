@@ -113,6 +113,10 @@ def test_a_frame_range_not_of_the_form_a_b_says_the_form(tmp_path):
     odd = tmp_path / "run:7"
     odd.mkdir()
     assert parse_seq_spec(str(odd)) == (str(odd), None)
+    for bad in ("10..20", "a-b", "10:20"):  # after a folder: a range mistyped (it was "not a directory")
+        with pytest.raises(ValueError, match=f"{odd}:{bad}: a frame range is PATH:a-b"):
+            parse_seq_spec(f"{odd}:{bad}")
+    assert parse_seq_spec(f"{tmp_path}/no-such:x") == (f"{tmp_path}/no-such:x", None)  # left to the folder's check
 
 
 def test_a_folder_given_with_a_trailing_slash_is_named_by_its_own_name():
@@ -292,6 +296,12 @@ def test_a_tum_rgbd_folder_reads_as_it_is_and_other_benchmarks_are_named(tmp_pat
     (boat / "H_1_to_2p").write_text("1 0 0\n0 1 0\n0 0 1\n")
     with pytest.raises(DatasetError, match="H_1_to_N files: a homography benchmark .* no camera poses"):
         Sequence.load(boat)
+    parent = tmp_path / "runs"  # the folder of the sequences, given for them
+    for name in ("b", "a"):
+        (parent / name).mkdir(parents=True)
+        shutil.copy(src / "camera.yaml", parent / name / "camera.yaml")
+    with pytest.raises(DatasetError, match=f"missing; it holds sequence folders \\(a, b\\): give those, e.g. {parent}/a {parent}/b$"):
+        Sequence.load(parent)
 
 
 def test_a_tum_rgbd_folder_named_as_tum_names_it_takes_tums_published_calibration(tmp_path, capsys):

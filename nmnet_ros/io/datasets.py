@@ -172,6 +172,9 @@ def _other_layout(root: Path) -> str | None:
         return ("rgb.txt: a TUM RGB-D sequence, read as it is (rgb.txt for images.txt, its groundtruth.txt) once "
                 "camera.yaml holds its camera's calibration (ROS camera_info YAML: the K and D TUM lists for "
                 "freiburg1/2/3), or, named as TUM names it (rgbd_dataset_freiburg1_xyz), with TUM's published one")
+    if inside := sorted(p.name for p in root.iterdir() if (p / "camera.yaml").is_file()):
+        shown = ", ".join(inside[:4]) + (f" and {len(inside) - 4} more" if len(inside) > 4 else "")
+        return f"it holds sequence folders ({shown}): give those, e.g. {' '.join(str(root / n) for n in inside[:2])}"
     return None
 
 

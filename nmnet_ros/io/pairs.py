@@ -158,9 +158,10 @@ def load_pairs(specs: list[str], gaps: tuple[int, ...], cache: FeatureCache, *, 
 
 def parse_seq_spec(spec: str) -> tuple[str, range | None]:
     """'PATH' or 'PATH:a-b' (frames a..b inclusive) -> (path, frames); a suffix of digits and dashes that is not
-    a-b (``:5``, ``:-5-10``) is a ValueError saying the form."""
+    a-b (``:5``, ``:-5-10``), or any other suffix after an existing folder (``:10..20``), is a ValueError saying
+    the form."""
     path, _, rng = spec.rpartition(":")
-    if not path or not rng.replace("-", "").isdigit() or Path(spec).is_dir():
+    if not path or Path(spec).is_dir() or not (rng.replace("-", "").isdigit() or Path(path).is_dir()):
         return spec, None
     if (m := re.fullmatch(r"(\d+)-(\d+)", rng)) is None:
         raise ValueError(f"{spec}: a frame range is PATH:a-b, frames a to b (e.g. {path}:0-119), got {rng!r}")
