@@ -447,6 +447,81 @@ def test_an_output_that_would_overwrite_an_input_or_a_recording_is_refused_befor
     assert json.loads(summary.read_text())["frames"] == 3 and read_output(Path(out))["/nmnet_node/relative_pose"] == 3
 
 
+def _write_random_output(path: Path, messages: int) -> None:
+    """An output of ``messages`` incompressible 200 kB messages: several 1 MB chunks."""
+    from nmnet_ros.io.mcap_out import McapOutput
+
+    rng = np.random.default_rng(0)
+    out = McapOutput(path)
+    T = out.ts.types
+    try:
+        for i in range(messages):
+            header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=i, nanosec=0), frame_id="c")
+            msg = T["sensor_msgs/msg/CompressedImage"](header=header, format="jpeg",
+                                                       data=np.frombuffer(rng.bytes(200_000), np.uint8))
+            out.write("/blob", "sensor_msgs/msg/CompressedImage", msg, i * 10**9)
+    finally:
+        out.close()
+
+
+def test_an_output_cut_short_anywhere_is_ended_readable_or_removed(tmp_path):
+    """A failed write (a full disk) left a file no reader opens ("File end magic is invalid"); end_cut_short keeps
+    the complete records before the cut, readable by mcap and rosbags, or removes the file."""
+    from nmnet_ros.io.mcap_out import end_cut_short
+
+    whole = tmp_path / "whole.mcap"
+    _write_random_output(whole, 20)
+    data, kept = whole.read_bytes(), []
+    for cut in (4, 40, *range(1_000, len(data), len(data) // 9)):
+        part = tmp_path / f"cut{cut}.mcap"
+        part.write_bytes(data[:cut])
+        kept.append(end_cut_short(part))
+        if kept[-1] is None:
+            assert not part.exists()
+            continue
+        counts = read_output(part)  # mcap's reader and rosbags' agree (checked there)
+        assert counts.get("/blob", 0) == kept[-1]
+    assert kept[:2] == [None, 0]  # not even the header: no file; the header alone: a file without messages
+    assert None not in kept[1:] and kept[1:] == sorted(kept[1:]) and 0 < kept[-1] < 20, kept
+
+
+def test_an_output_whose_disk_fills_keeps_what_was_written_readable(tmp_path):
+    """The file-size limit (RLIMIT_FSIZE) fails the write as a full disk does, with a real OSError."""
+    out = tmp_path / "o.mcap"
+    code = ("import resource, signal, sys\n"
+            "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
+            "resource.setrlimit(resource.RLIMIT_FSIZE, (2_500_000, 2_500_000))\n"
+            "from pathlib import Path\n"
+            "from test.test_bags import _write_random_output\n"
+            "try:\n"
+            f"    _write_random_output(Path({str(out)!r}), 30)\n"
+            "except OSError as e:\n"
+            "    sys.exit(str(e))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    said = f"writing output {out} failed (File too large) with "
+    assert r.returncode == 1 and r.stderr.startswith(said) and "readable" in r.stderr, r.stderr
+    kept = int(r.stderr.split("it keeps the first ")[1].split(",")[0])
+    assert 0 < kept < 30 and read_output(out)["/blob"] == kept
+
+
+@pytest.mark.parametrize("name", ["run.mcap", "run", "run.bag"])
+def test_a_make_bag_whose_disk_fills_names_its_output_and_leaves_none(tmp_path, name):
+    """It said "[Errno 28] No space left on device", naming no file (the file-size limit fails a write as a full
+    disk does)."""
+    out = tmp_path / "bags" / name
+    code = ("import resource, signal, sys\n"
+            "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
+            "resource.setrlimit(resource.RLIMIT_FSIZE, (1_000_000, 1_000_000))\n"
+            "from nmnet_ros.tools.make_bag import make_bag\n"
+            "try:\n"
+            f"    make_bag({str(data_dir('kitti-07'))!r}, {str(out)!r}, frames=range(0, 20))\n"
+            "except OSError as e:\n"
+            "    sys.exit(str(e))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert r.returncode == 1 and r.stderr.strip() == f"writing {out} failed (File too large): nothing written", r.stderr
+    assert list((tmp_path / "bags").iterdir()) == []  # no output, no hidden writing folder
+
+
 def test_an_output_overwrites_only_an_earlier_output_or_an_empty_file(tmp_path):
     from nmnet_ros.io.mcap_out import McapOutput
 

@@ -1,16 +1,23 @@
 """Output recordings: one .mcap file, ROS 2 CDR messages serialised by rosbags' typestore.
 
 Opened before any processing (an unwritable path fails at once) and finished in ``close()``,
-which callers run in ``finally`` so an interrupted run still leaves a valid, indexed file.
+which callers run in ``finally`` so an interrupted run still leaves a valid, indexed file. A write
+that fails (a full disk) ends the file after its last complete record (:func:`end_cut_short`): the
+messages before it stay readable.
 """
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from mcap.writer import CompressionType, Writer
+from mcap.data_stream import RecordBuilder
+from mcap.opcode import Opcode
+from mcap.reader import make_reader
+from mcap.records import DataEnd, Footer
+from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
 from ..interface.imgconv import array_to_image_fields, matches_to_cloud_fields
 from ..interface.posemsg import SIGMAS, relative_pose_of_current
@@ -19,6 +26,42 @@ from .outputs import LIBRARY, written_here
 
 if TYPE_CHECKING:  # the front end (and its network) is not needed to write a bag
     from ..core.pipeline import FrameResult
+
+
+DATA_SECTION = {Opcode.HEADER, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE, Opcode.CHUNK, Opcode.MESSAGE_INDEX,
+                Opcode.ATTACHMENT, Opcode.METADATA}  # the records before DataEnd (MCAP specification)
+
+
+def end_cut_short(path: Path) -> int | None:
+    """End an .mcap file whose writing failed part-way: cut it after its last complete data-section record and
+    append what ends a file without a summary (DataEnd, Footer, magic), which readers then scan. The messages it
+    keeps; None, and the file removed, when not even that can be written (or it holds no complete header): a file
+    is readable or gone."""
+    try:
+        with open(path, "r+b") as fh:
+            size, end = fh.seek(0, 2), 0
+            fh.seek(0)
+            if fh.read(len(MCAP0_MAGIC)) == MCAP0_MAGIC:
+                at = len(MCAP0_MAGIC)
+                while len(head := fh.read(9)) == 9:
+                    opcode, length = struct.unpack("<BQ", head)
+                    if opcode not in DATA_SECTION or at + 9 + length > size:
+                        break
+                    at = fh.seek(at + 9 + length)
+                    end = at
+            if end == 0:
+                raise OSError("no complete record")
+            fh.truncate(end)
+            fh.seek(end)
+            tail = RecordBuilder()
+            DataEnd(data_section_crc=0).write(tail)
+            Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(tail)
+            fh.write(tail.end() + MCAP0_MAGIC)
+        with open(path, "rb") as fh:
+            return sum(1 for _ in make_reader(fh).iter_messages())
+    except OSError:
+        path.unlink(missing_ok=True)
+        return None
 
 
 class McapOutput:
@@ -57,14 +100,25 @@ class McapOutput:
 
     def write(self, topic: str, msgtype: str, msg: Any, t_ns: int) -> None:
         """Serialise and append one message."""
-        data = self.ts.serialize_cdr(msg, msgtype)
-        self._writer.add_message(self._channel(topic, msgtype), log_time=t_ns, data=bytes(data), publish_time=t_ns)
-        self.count += 1
+        self.write_raw(topic, msgtype, self.ts.serialize_cdr(msg, msgtype), t_ns)
 
     def write_raw(self, topic: str, msgtype: str, data: bytes, t_ns: int) -> None:
         """Append an already CDR-serialised message (e.g. from rclpy's serialize_message)."""
-        self._writer.add_message(self._channel(topic, msgtype), log_time=t_ns, data=bytes(data), publish_time=t_ns)
+        try:
+            self._writer.add_message(self._channel(topic, msgtype), log_time=t_ns, data=bytes(data), publish_time=t_ns)
+        except OSError as e:
+            raise self._cut_short(e) from e
         self.count += 1
+
+    def _cut_short(self, e: OSError) -> OSError:
+        """The file closed after a failed write and ended as :func:`end_cut_short` can; the error saying so."""
+        try:
+            self._fh.close()
+        except OSError:
+            pass  # the rest of the buffer cannot be written either
+        kept = end_cut_short(self.path)
+        said = "removed: not even its end could be written" if kept is None else f"it keeps the first {kept}, readable"
+        return OSError(f"writing output {self.path} failed ({e.strerror or e}) with {self.count} messages given: {said}")
 
     def _header(self, stamp: float, frame_id: str):
         T = self.ts.types
@@ -103,5 +157,9 @@ class McapOutput:
             return
         try:
             self._writer.finish()
-        finally:
             self._fh.close()
+        except OSError as e:
+            raise self._cut_short(e) from e
+        except BaseException:  # a second Ctrl-C while finishing: closed all the same
+            self._fh.close()
+            raise

@@ -137,11 +137,13 @@ def make_bag(seq_dir: str | Path, out: str | Path, fmt: str | None = None, compr
                 raise BagError(f"{seq.root}: none of the {len(idx)} frames could be read; no bag written")
         if staging:
             os.replace(storage_file, out)
-    except BaseException:  # an error, or an interrupt before any frame: no partial output in a rerun's way
+    except BaseException as e:  # an error, or an interrupt before any frame: no partial output in a rerun's way
         if out.is_dir():
             shutil.rmtree(out, ignore_errors=True)
         else:
             out.unlink(missing_ok=True)
+        if isinstance(e, OSError):  # a full disk: rosbags' error names no file
+            raise OSError(f"writing {out} failed ({e.strerror or e}): nothing written") from e
         raise
     finally:
         if staging:
