@@ -246,6 +246,8 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_work(argv, 
 
 
 @pytest.mark.parametrize("methods, said", [("ratio,magsak", "unknown method(s) ['magsak']; choose from nmnet, "),
+                                           ("ratio,classic", "unknown method(s) ['classic'] (classic is the node's "
+                                            "pose_estimator; here it is ratio+magsac); choose from nmnet, "),
                                            ("", "--methods names none; choose from nmnet, "),
                                            (" , ", "--methods names none; choose from nmnet, ")])
 def test_eval_methods_unknown_or_none_are_refused_before_any_work(methods, said, capsys):

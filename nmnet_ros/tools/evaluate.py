@@ -26,7 +26,7 @@ from ..core.metrics import prf
 from ..core.model import NEIGHBORS, load_model
 from ..core.model_fast import precision_note
 from ..core.selectors import METHODS, NETWORK, ROBUST, build
-from ..core.settings import unread
+from ..core.settings import POSE_ESTIMATORS, unread
 from ..io.cache import FeatureCache, default_cache_dir
 from ..io.outputs import output_file, save_figure, write_json
 from ..io.pairs import PairData, absolute_spec, load_pairs, parse_seq_spec, shared_frames, spec_label, to_correspondences, to_stderr
@@ -330,8 +330,10 @@ def main(args: argparse.Namespace) -> int:
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:  # none: an empty table and an empty plot, exit 0
-        raise ValueError(f"{f'unknown method(s) {unknown}' if unknown else '--methods names none'}; choose from "
-                         f"{', '.join(METHODS)}")
+        node_names = "".join(f" ({m} is the node's pose_estimator; here it is {POSE_ESTIMATORS[m]})" for m in unknown
+                             if m in POSE_ESTIMATORS)
+        raise ValueError(f"{f'unknown method(s) {unknown}' if unknown else '--methods names none'}{node_names}; choose "
+                         f"from {', '.join(METHODS)}")
     if args.max_iters < 1:
         raise ValueError(f"--max-iters must be >= 1, got {args.max_iters}")
     if args.seeds < 1:
