@@ -269,7 +269,7 @@ def _run(args: argparse.Namespace) -> int:
     print("|---|---|---|---|---|")
     for n, r in res["neighbors"].items():
         print(f"| {n} | {r['compatibility_ms']:.1f} / {r['compatibility_p90_ms']:.1f} | {r['spatial_ms']:.1f} | "
-              f"{r['loop_ms']:.0f} | {r['speedup_vs_loop']:.0f}x |")
+              f"{r['loop_ms']:.1f} | {r['speedup_vs_loop']:.1f}x |")
     if args.pipeline:
         from ..io.bags import BagReader, read_frames
         from .options import SAMPLE_BAG
