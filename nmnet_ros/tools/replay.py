@@ -221,18 +221,18 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
     if args.out.suffix != ".mcap" and not args.out.exists():  # an existing file: McapOutput says whose it is
         raise ValueError(f"--out {args.out}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know "
                          f"by its .mcap suffix: give {args.out.with_suffix('.mcap')}")
-    if args.plots is not None:
-        output_folder(args.plots, "--plots", "the plots", inputs, [f"{name}.png" for name in PLOTS])
-        folder, prefix = args.plots, ""
-    else:
-        folder, prefix = args.out.parent, f"{args.out.stem}_"  # --out's folder: checked as the output is opened
-        for name in PLOTS:
-            not_someone_elses(folder / f"{prefix}{name}.png", "the plot")
+    folder, prefix = (args.plots, "") if args.plots is not None else (args.out.parent, f"{args.out.stem}_")
+    plots = [folder / f"{prefix}{name}.png" for name in PLOTS]
     if args.json is not None:  # one would be written over the other
-        for other, what in [(args.out, "--out"), *((folder / f"{prefix}{n}.png", f"the {n} plot") for n in PLOTS)]:
+        for other, what in [(args.out, "--out"), *((p, f"the {n} plot") for p, n in zip(plots, PLOTS, strict=True))]:
             if args.json.resolve() == other.resolve():
                 raise ValueError(f"--json {args.json} is also {what}: give the summary its own file, e.g. summary.json")
     output_file(args.json, "--json", "summary.json", inputs)
+    if args.plots is not None:
+        output_folder(args.plots, "--plots", "the plots", inputs, [p.name for p in plots])
+    else:  # --out's folder: checked as the output is opened
+        for path in plots:
+            not_someone_elses(path, "the plot")
     return folder, prefix
 
 
