@@ -222,9 +222,9 @@ def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> tuple[Path, s
         raise ValueError(f"--out {args.out}: the output is an MCAP file, which ros2 bag, rosbags and nmnet replay know "
                          f"by its .mcap suffix: give {args.out.with_suffix('.mcap')}")
     folder, prefix = (args.plots, "") if args.plots is not None else (args.out.parent, f"{args.out.stem}_")
-    plots = [folder / f"{prefix}{name}.png" for name in PLOTS]
+    plots = {folder / f"{prefix}{name}.png": f"the {name} plot" for name in PLOTS}
     if args.json is not None:  # one would be written over the other
-        for other, what in [(args.out, "--out"), *((p, f"the {n} plot") for p, n in zip(plots, PLOTS, strict=True))]:
+        for other, what in {args.out: "--out", **plots}.items():
             if args.json.resolve() == other.resolve():
                 raise ValueError(f"--json {args.json} is also {what}: give the summary its own file, e.g. summary.json")
     output_file(args.json, "--json", "summary.json", inputs)
