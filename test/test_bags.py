@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -485,23 +486,33 @@ def test_an_output_cut_short_anywhere_is_ended_readable_or_removed(tmp_path):
     assert None not in kept[1:] and kept[1:] == sorted(kept[1:]) and 0 < kept[-1] < 20, kept
 
 
-def test_an_output_whose_disk_fills_keeps_what_was_written_readable(tmp_path):
-    """The file-size limit (RLIMIT_FSIZE) fails the write as a full disk does, with a real OSError."""
-    out = tmp_path / "o.mcap"
+def with_file_size_limit(limit: int, call: str) -> subprocess.CompletedProcess:
+    """Python ``call`` in a process whose files may not grow past ``limit`` bytes (RLIMIT_FSIZE): a write past it
+    fails with a real OSError, as on a full disk. An OSError leaving ``call`` is its stderr, exit code 1."""
     code = ("import resource, signal, sys\n"
             "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
-            "resource.setrlimit(resource.RLIMIT_FSIZE, (2_500_000, 2_500_000))\n"
+            f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit}))\n"
             "from pathlib import Path\n"
-            "from test.test_bags import _write_random_output\n"
             "try:\n"
-            f"    _write_random_output(Path({str(out)!r}), 30)\n"
+            f"    {call}\n"
             "except OSError as e:\n"
             "    sys.exit(str(e))\n")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
-    said = f"writing output {out} failed (File too large) with "
-    assert r.returncode == 1 and r.stderr.startswith(said) and "readable" in r.stderr, r.stderr
-    kept = int(r.stderr.split("it keeps the first ")[1].split(",")[0])
-    assert 0 < kept < 30 and read_output(out)["/blob"] == kept
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
+
+
+@pytest.mark.parametrize(("messages", "limit", "given"), [(30, 2_500_000, "1[0-9]"), (3, 300_000, "3")],
+                         ids=["writing", "finishing"])
+def test_an_output_whose_disk_fills_keeps_what_was_written_readable(tmp_path, messages, limit, given):
+    """Past the limit while writing (a 1 MB chunk leaves, 5 per chunk) or while finishing (all in the last chunk):
+    the file keeps the complete chunks before it, readable, and the error says how many messages."""
+    out = tmp_path / "o.mcap"
+    r = with_file_size_limit(limit, f"__import__('test.test_bags').test_bags._write_random_output(Path({str(out)!r}), "
+                                    f"{messages})")
+    m = re.fullmatch(f"writing output {re.escape(str(out))} failed \\(File too large\\) with {given} messages given: "
+                     "it keeps the first (\\d+), readable\n", r.stderr)
+    assert r.returncode == 1 and m, r.stderr
+    kept = int(m[1])
+    assert (0 < kept < messages if messages > 5 else kept == 0) and read_output(out).get("/blob", 0) == kept
 
 
 @pytest.mark.parametrize("name", ["run.mcap", "run", "run.bag"])
@@ -509,15 +520,8 @@ def test_a_make_bag_whose_disk_fills_names_its_output_and_leaves_none(tmp_path, 
     """It said "[Errno 28] No space left on device", naming no file (the file-size limit fails a write as a full
     disk does)."""
     out = tmp_path / "bags" / name
-    code = ("import resource, signal, sys\n"
-            "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
-            "resource.setrlimit(resource.RLIMIT_FSIZE, (1_000_000, 1_000_000))\n"
-            "from nmnet_ros.tools.make_bag import make_bag\n"
-            "try:\n"
-            f"    make_bag({str(data_dir('kitti-07'))!r}, {str(out)!r}, frames=range(0, 20))\n"
-            "except OSError as e:\n"
-            "    sys.exit(str(e))\n")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    r = with_file_size_limit(1_000_000, f"__import__('nmnet_ros.tools.make_bag').tools.make_bag.make_bag("
+                                        f"{str(data_dir('kitti-07'))!r}, {str(out)!r}, frames=range(0, 20))")
     assert r.returncode == 1 and r.stderr.strip() == f"writing {out} failed (File too large): nothing written", r.stderr
     assert list((tmp_path / "bags").iterdir()) == []  # no output, no hidden writing folder
 
