@@ -245,6 +245,22 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_work(argv, 
     assert (tmp_path / "new" / "deeper").is_dir()
 
 
+def test_a_tools_options_may_come_between_its_positionals(capsys):
+    """`nmnet label imgs --camera c.yaml out` said "nmnet: error: unrecognized arguments: out" under the usage of all
+    tools: argparse took the subcommand's positionals in one pass, before the option."""
+    from pathlib import Path
+
+    from nmnet_ros.tools.cli import parse_args
+
+    args = parse_args(["label", "imgs", "--camera", "c.yaml", "out"])
+    assert (args.recordings, args.out_dir, args.camera, args.command) == (["imgs"], Path("out"), Path("c.yaml"), "label")
+    assert parse_args(["eval", "a", "--gaps", "1-3", "b", "--seeds", "2"]).seqs == ["a", "b"]
+    assert parse_args(["make-bag", "seq", "--compressed", "o.mcap"]).out_positional == Path("o.mcap")
+    with pytest.raises(SystemExit):
+        parse_args(["label", "--camera", "c.yaml"])
+    assert "nmnet label: error: the following arguments are required: OUT_DIR" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("methods, said", [("ratio,magsak", "unknown method(s) ['magsak']; choose from nmnet, "),
                                            ("ratio,classic", "unknown method(s) ['classic'] (classic is the node's "
                                             "pose_estimator; here it is ratio+magsac); choose from nmnet, "),

@@ -118,26 +118,42 @@ def readers_may_leave() -> Iterator[None]:
         sys.stdout, sys.stderr = saved
 
 
+def _command(p: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
+    """``p`` as ``nmnet NAME``'s parser: its options from tools/options.py, its module to run."""
+    module, add_options, _ = SUBCOMMANDS[name]
+    p.set_defaults(_module=module, command=name)
+    add_options(p)
+    return p
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Parser with every subcommand's options (a subcommand's module is imported only when it runs)."""
     parser = argparse.ArgumentParser(prog="nmnet", description="NM-Net visual-odometry front end: tools.")
     parser.add_argument("--version", action="version", version=version())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name, (module, add_options, help_text) in SUBCOMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=options.HelpFormatter)
-        p.set_defaults(_module=module)
-        add_options(p)
+    for name, (_, _, help_text) in SUBCOMMANDS.items():
+        _command(sub.add_parser(name, help=help_text, description=help_text, formatter_class=options.HelpFormatter), name)
     return parser
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    """``argv``'s tool and options. A tool's options may come between its positionals (``nmnet label imgs --camera
+    c.yaml out``, ``nmnet eval seq_a --gaps 1-3 seq_b``), which the parser of all tools refuses: it takes a
+    subcommand's positionals in one pass, and the error it gives names none of them."""
+    if argv and argv[0] in SUBCOMMANDS:
+        help_text = SUBCOMMANDS[argv[0]][2]
+        p = argparse.ArgumentParser(prog=f"nmnet {argv[0]}", description=help_text, formatter_class=options.HelpFormatter)
+        return _command(p, argv[0]).parse_intermixed_args(argv[1:])
+    return build_parser().parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``nmnet`` console script."""
     argv = sys.argv[1:] if argv is None else argv
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parse_args(argv)
     warnings.formatwarning = lambda message, *_, **__: f"warning: {message}\n"  # a user's line, not Python's source line
     if not getattr(args, "_module", None):  # a script calling bare `nmnet` must not read success
-        parser.print_help(sys.stderr)
+        build_parser().print_help(sys.stderr)
         print(f"nmnet: error: name a command: {', '.join(SUBCOMMANDS)} (nmnet COMMAND --help)", file=sys.stderr)
         return 2
     with readers_may_leave():
