@@ -2,21 +2,25 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
 import subprocess
 import sys
 
+import cv2
 import numpy as np
 import pytest
 
-from nmnet_ros.io.datasets import Sequence
+from nmnet_ros.core.geometry import Camera
+from nmnet_ros.io.datasets import Sequence, write_camera_yaml
 from nmnet_ros.io.outputs import written_here
+from nmnet_ros.tools.label import frames_of, pick_keyframes
 from nmnet_ros.tools.make_bag import make_bag
 
 from .conftest import ROOT, data_dir
 
-pytestmark = pytest.mark.slow
+CAMERA = Camera(np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]]), width=320, height=240)
 
 
 def nmnet(*args: str) -> subprocess.CompletedProcess:
@@ -24,6 +28,7 @@ def nmnet(*args: str) -> subprocess.CompletedProcess:
                           timeout=900)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene, frames", [("strecha-fountain-p11", ""), ("kitti-07", ":0-59")])
 def test_labels_of_a_reconstruction_agree_with_the_real_ground_truth(tmp_path, scene, frames):
     """The mapper never sees the ground truth; the consecutive keyframes' relative poses it gives agree with it to
@@ -46,6 +51,7 @@ def test_labels_of_a_reconstruction_agree_with_the_real_ground_truth(tmp_path, s
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # nothing left of the build
 
 
+@pytest.mark.slow
 def test_a_bag_is_labelled_with_its_camera_info_and_a_standing_camera_is_refused(tmp_path):
     """A bag (as replay reads it) gives its frames and its camera_info; a standing camera (EuRoC's MAV on the
     ground) or too few keyframes is refused with the reason and what to do, and leaves no output; so is a folder of
@@ -92,3 +98,37 @@ def test_a_bag_is_labelled_with_its_camera_info_and_a_standing_camera_is_refused
     (images / "a.png").write_bytes((data_dir("kitti-07") / "images" / "000000.png").read_bytes())
     r = nmnet("label", str(images), str(tmp_path / "x"))
     assert r.returncode == 2 and "needs --camera" in r.stderr
+
+
+def textured(shift: int, size: tuple[int, int] = (240, 320)) -> np.ndarray:
+    """A gray image of blobs, moved ``shift`` pixels to the right."""
+    noise = np.random.default_rng(0).integers(0, 256, (size[0], size[1] + 64), dtype=np.uint8)
+    return cv2.GaussianBlur(noise, (7, 7), 2)[:, 64 - shift:64 - shift + size[1]].copy()
+
+
+@pytest.mark.parametrize("start", [0.0, 1.7e9])
+def test_frames_at_the_keyframe_interval_are_every_one_a_keyframe(start):
+    """At 10 Hz stamps (a folder of images at the default --fps, a bag's) and the default --interval 0.1 s, frames were
+    dropped where float rounding put two stamps under 0.1 s apart (0.7 - 0.6): 6 of 10 kept."""
+    frames = [(start + k / 10, textured(k)) for k in range(20)]
+    assert len(list(pick_keyframes(iter(frames), 0.1, 0.0, 400, CAMERA, []))) == 20
+    assert [s for s, _ in pick_keyframes(iter(frames), 0.2, 0.0, 400, CAMERA, [])] == [s for s, _ in frames[::2]]
+
+
+def test_a_folder_of_images_skips_one_that_does_not_decode_and_refuses_another_size(tmp_path, capsys):
+    """A corrupt file among the images ended the run with a traceback (cv2.imread's None); it is now skipped with a
+    warning naming it, the others keeping their stamps. An image of another size than --camera says is refused."""
+    folder, calibration = tmp_path / "images", tmp_path / "camera.yaml"
+    folder.mkdir()
+    write_camera_yaml(calibration, CAMERA)
+    for k in range(4):
+        cv2.imwrite(str(folder / f"{k:04d}.png"), textured(k))
+    (folder / "0002.png").write_bytes(b"not a png")
+    args = argparse.Namespace(camera=calibration, image_topic=None, fps=10.0)
+    frames, camera = frames_of(folder, args)
+    assert [stamp for stamp, _ in frames] == [0.0, 0.1, 0.3] and camera.width == 320
+    assert f"warning: {folder / '0002.png'}: cannot decode image (9 bytes)" in capsys.readouterr().err
+    cv2.imwrite(str(folder / "0004.png"), textured(4, (480, 640)))
+    with pytest.raises(ValueError, match=f"{folder / '0004.png'}: 640x480, but --camera {calibration} is for 320x240 "
+                                         "images: give the calibration of the camera that took them"):
+        list(frames_of(folder, args)[0])

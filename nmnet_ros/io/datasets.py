@@ -178,7 +178,7 @@ def _other_layout(root: Path) -> str | None:
     return None
 
 
-def _decode(path: Path) -> np.ndarray:
+def decode_image(path: Path) -> np.ndarray:
     """An image file as stored; DatasetError naming it when missing, truncated or not an image."""
     try:  # decoded from its bytes: cv2.imread returns a truncated JPEG's top part, grey below, with a mere warning
         data = np.fromfile(path, np.uint8)
@@ -282,7 +282,7 @@ class Sequence:
         calib.txt, a camera.yaml without image_width) takes the first image's, so that every frame is checked
         against it."""
         try:
-            h, w = _decode(self.paths[0]).shape[:2]
+            h, w = decode_image(self.paths[0]).shape[:2]
         except DatasetError:
             return  # named where the frame is used
         cam = self.camera
@@ -307,7 +307,7 @@ class Sequence:
 
     def image(self, i: int) -> np.ndarray:
         """Frame i as stored (uint8 gray or BGR), the size of the folder's camera."""
-        img = _decode(self.paths[i])
+        img = decode_image(self.paths[i])
         (h, w), cam = img.shape[:2], self.camera
         if cam.width > 0 and (w, h) != (cam.width, cam.height):
             raise DatasetError(f"{self.paths[i]}: {w}x{h}, but the folder's frames are {cam.width}x{cam.height} "

@@ -24,13 +24,14 @@ from ..core.geometry import Camera, fit_rotation, rotation_error_deg, translatio
 from ..core.settings import FRONTEND_DEFAULTS
 from ..interface.posemsg import rot_to_quat
 from ..io.bags import BAG_SUFFIXES, BagReader, read_frames
-from ..io.datasets import Sequence, epipolar_labels, read_camera_yaml, write_camera_yaml
+from ..io.datasets import DatasetError, Sequence, decode_image, epipolar_labels, read_camera_yaml, write_camera_yaml
 from ..io.outputs import not_an_input, output_file, output_folder, write_json, written_here
 from ..io.pairs import parse_seq_spec
 from ..io.reconstruction import MIN_REGISTERED, STAGES, ReconstructionError, quality_problem, reconstruct
 from . import fleet
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
+STAMP_ROUNDING_S = 1e-6  # stamps as float seconds: 0.7 - 0.6 < 0.1, and ROS times of ~1.7e9 s round to 2.4e-7 s
 MIN_PARALLAX_PX = 0.5  # median between consecutive keyframes; KITTI at 10 Hz has >= 1.7 px, a standing MAV 0.07
 OUTPUTS = ("camera.yaml", "images.txt", "groundtruth.txt", "reconstruction.json")
 
@@ -65,7 +66,23 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
     files = _images_in(source)
     if camera is None:
         raise ValueError(f"{source}: a folder of images needs --camera (a camera_info YAML) for its calibration")
-    return ((k / args.fps, cv2.imread(str(p), cv2.IMREAD_UNCHANGED)) for k, p in enumerate(files)), camera
+    return _folder_frames(files, camera, args.camera, args.fps), camera
+
+
+def _folder_frames(files: list[Path], camera: Camera, calibration: Path, fps: float) -> Iterator[tuple[float, np.ndarray]]:
+    """(stamp, image) of a folder of images, the k-th by name stamped k / ``fps``. An image that does not decode is
+    skipped with a warning (the others keep their stamps); one of another size than ``calibration`` says is an error."""
+    for k, path in enumerate(files):
+        try:
+            image = decode_image(path)
+        except DatasetError as e:
+            print(f"warning: {e}: skipped", file=sys.stderr)
+            continue
+        (h, w) = image.shape[:2]
+        if camera.width > 0 and (w, h) != (camera.width, camera.height):
+            raise ValueError(f"{path}: {w}x{h}, but --camera {calibration} is for {camera.width}x{camera.height} "
+                             "images: give the calibration of the camera that took them")
+        yield k / fps, image
 
 
 def _chain(head: tuple, rest: Iterator) -> Iterator:
@@ -112,7 +129,7 @@ def pick_keyframes(frames: Iterator[tuple[float, np.ndarray]], interval: float, 
     for stamp, image in frames:
         if n >= max_frames:
             return
-        if last is not None and stamp - last < interval:
+        if last is not None and stamp - last < interval - STAMP_ROUNDING_S:
             continue
         gray = _gray(image)
         if last_gray is not None:  # the corners are found and tracked once for both tests
