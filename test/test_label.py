@@ -132,3 +132,16 @@ def test_a_folder_of_images_skips_one_that_does_not_decode_and_refuses_another_s
     with pytest.raises(ValueError, match=f"{folder / '0004.png'}: 640x480, but --camera {calibration} is for 320x240 "
                                          "images: give the calibration of the camera that took them"):
         list(frames_of(folder, args)[0])
+
+
+def test_a_range_or_a_truth_that_does_not_fit_the_recording_is_refused_before_the_reconstruction(tmp_path):
+    """`label kitti-07:0-3000` (160 frames) ended in an IndexError traceback; a --truth folder of other frames was
+    found out after the reconstruction's minutes. Both are said before it, and leave no output."""
+    r = nmnet("label", f"{data_dir('kitti-07')}:0-3000", str(tmp_path / "a"))
+    assert r.returncode == 2 and "frames 0-3000 are not all in the folder; it has frames 0-159" in r.stderr, r.stderr
+    bag = tmp_path / "run.mcap"
+    assert make_bag(data_dir("kitti-07"), bag, frames=range(60, 72)) == 12
+    r = nmnet("label", str(bag), str(tmp_path / "b"), "--truth", str(data_dir("strecha-entry-p10")))
+    assert r.returncode == 2 and "reconstructing" not in r.stderr, r.stderr
+    assert f"--truth {data_dir('strecha-entry-p10')}: none of its frames has a keyframe's stamp" in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]

@@ -61,8 +61,7 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
     path = Path(path)
     if (path / "images.txt").is_file() or (path / "camera.yaml").is_file() or not _images_in(path):
         seq = Sequence.load(path)  # its ground truth, if any, is not looked at
-        chosen = frames if frames is not None else range(len(seq.paths))
-        return ((float(seq.stamps[i]), seq.image(i)) for i in chosen), camera or seq.camera
+        return ((float(seq.stamps[i]), seq.image(i)) for i in seq.frames(frames)), camera or seq.camera
     files = _images_in(source)
     if camera is None:
         raise ValueError(f"{source}: a folder of images needs --camera (a camera_info YAML) for its calibration")
@@ -165,6 +164,17 @@ def truth_sequence(spec: str) -> Sequence:
     return truth
 
 
+def keyframes_in(stamps: list[float] | np.ndarray, truth: Sequence, spec: str) -> list[tuple[int, int, int]]:
+    """(i, a, b) for each pair of consecutive keyframes i, i + 1 that ``truth`` has as its frames a, b (by stamp, to the
+    millisecond); a ValueError naming ``spec`` where it has none."""
+    at = {round(float(s), 3): k for k, s in enumerate(truth.stamps)}
+    frame = [at.get(round(float(s), 3)) for s in stamps]
+    found = [(i, a, b) for i, (a, b) in enumerate(zip(frame[:-1], frame[1:], strict=True)) if a is not None and b is not None]
+    if not found:
+        raise ValueError(f"--truth {spec}: none of its frames has a keyframe's stamp: give the folder labelled")
+    return found
+
+
 def truth_check(out: Path, truth_spec: str) -> dict:
     """How the labels of the folder ``out`` agree with the real ground truth of ``truth_spec`` (a sequence folder
     holding the same frames, by stamp): each consecutive keyframe pair's rotation and translation-direction error,
@@ -174,14 +184,10 @@ def truth_check(out: Path, truth_spec: str) -> dict:
     from ..io.pairs import make_pair
 
     labelled, truth = Sequence.load(out), truth_sequence(truth_spec)
-    at = {round(float(s), 3): k for k, s in enumerate(truth.stamps)}
     cache = FeatureCache(make_detector(FRONTEND_DEFAULTS["detector"], {"max_keypoints": FRONTEND_DEFAULTS["max_keypoints"]}))
     rot, direction, same, total = [], [], 0, 0
-    for i in range(len(labelled.paths) - 1):
-        a, b = at.get(round(float(labelled.stamps[i]), 3)), at.get(round(float(labelled.stamps[i + 1]), 3))
-        if a is None or b is None or not (labelled.has_pose(i) and labelled.has_pose(i + 1)):
-            continue
-        if not (truth.has_pose(a) and truth.has_pose(b)):
+    for i, a, b in keyframes_in(labelled.stamps, truth, truth_spec):
+        if not (labelled.has_pose(i) and labelled.has_pose(i + 1) and truth.has_pose(a) and truth.has_pose(b)):
             continue
         (R, t), (R_gt, t_gt) = labelled.relative_pose(i, i + 1), truth.relative_pose(a, b)
         rot.append(rotation_error_deg(R, R_gt))
@@ -191,7 +197,8 @@ def truth_check(out: Path, truth_spec: str) -> dict:
         same += int((mine == p.labels).sum())
         total += len(p.labels)
     if not rot:
-        raise ValueError(f"--truth {truth_spec}: none of its frames has a keyframe's stamp: give the folder labelled")
+        raise ValueError(f"--truth {truth_spec}: no two consecutive keyframes both posed by the reconstruction and "
+                         "by it: nothing to check")
     return {"pairs": len(rot), "median_rot_deg": float(np.median(rot)), "median_trans_deg": float(np.median(direction)),
             "label_agreement_percent": 100 * same / max(total, 1), "matches": total}
 
@@ -229,8 +236,7 @@ def label_recording(args: argparse.Namespace) -> int:
                   () if ours else OUTPUTS)
     if out.is_dir() and any(out.iterdir()) and not ours:
         raise ValueError(f"OUT_DIR {out} holds files nmnet label did not write: give a new or empty folder")
-    if args.truth:
-        truth_sequence(args.truth)
+    truth = truth_sequence(args.truth) if args.truth else None
     frames, camera = frames_of(source, args)
     if camera is None:
         raise ValueError(f"{source}: no camera_info in the recording; give its calibration with --camera")
@@ -261,6 +267,8 @@ def label_recording(args: argparse.Namespace) -> int:
                 f"{source}: the camera barely moves between keyframes (median parallax {np.median(parallax):.2f} px, "
                 f"under {MIN_PARALLAX_PX} px, once its turning is taken out: a standing or only turning camera); poses "
                 "from it would be drawn from noise: record while the robot moves, or skip the still parts (--min-flow)")
+        if truth is not None:  # said before the reconstruction's minutes
+            keyframes_in(stamps, truth, args.truth)
         print(f"label: {len(names)} keyframes; reconstructing (COLMAP, {args.mapper} mapper)", file=sys.stderr)
         with tqdm(desc="label: COLMAP", total=len(STAGES), unit="stage", file=sys.stderr, disable=None) as bar:
             rec = reconstruct(building / "images", names, camera, building / "colmap", args.refine_intrinsics,
