@@ -549,6 +549,10 @@ def test_missing_bag_and_unknown_format(tmp_path):
     odd.write_text("hello")
     with pytest.raises(BagError, match="unknown bag type"):
         BagReader(odd)
+    for ranged in (SAMPLE_BAG, SAMPLE_BAG / "kitti07_120-159.mcap"):  # a sequence folder's PATH:a-b given a bag
+        with pytest.raises(BagError, match=f"{ranged}:0-10: a bag is read whole, it takes no frame range .* nmnet "
+                                           "replay reads a part of it with --start and --duration"):
+            BagReader(f"{ranged}:0-10")
 
 
 def test_a_bag_whose_content_is_not_its_extensions_format_is_named(bags, tmp_path):

@@ -17,6 +17,7 @@ from nmnet_ros.io.datasets import Sequence, write_camera_yaml
 from nmnet_ros.io.outputs import written_here
 from nmnet_ros.tools.label import frames_of, pick_keyframes
 from nmnet_ros.tools.make_bag import make_bag
+from nmnet_ros.tools.options import SAMPLE_BAG
 
 from .conftest import ROOT, data_dir
 
@@ -139,6 +140,8 @@ def test_a_range_or_a_truth_that_does_not_fit_the_recording_is_refused_before_th
     found out after the reconstruction's minutes. Both are said before it, and leave no output."""
     r = nmnet("label", f"{data_dir('kitti-07')}:0-3000", str(tmp_path / "a"))
     assert r.returncode == 2 and "frames 0-3000 are not all in the folder; it has frames 0-159" in r.stderr, r.stderr
+    r = nmnet("label", f"{SAMPLE_BAG}:0-10", str(tmp_path / "a"))  # it said to replay it, eval and train taking folders
+    assert r.returncode == 2 and "a bag is read whole, it takes no frame range" in r.stderr, r.stderr
     bag = tmp_path / "run.mcap"
     assert make_bag(data_dir("kitti-07"), bag, frames=range(60, 72)) == 12
     r = nmnet("label", str(bag), str(tmp_path / "b"), "--truth", str(data_dir("strecha-entry-p10")))

@@ -190,6 +190,10 @@ class BagReader:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         if not self.path.exists():
+            whole = re.fullmatch(r"(.+):\d+-\d+", str(self.path))
+            if whole and Path(whole[1]).exists():
+                raise BagError(f"{self.path}: a bag is read whole, it takes no frame range (:a-b is a sequence folder's); "
+                               "nmnet replay reads a part of it with --start and --duration")
             raise BagError(f"{self.path}: no such bag")
         meta = _metadata(self.path) if self.path.is_dir() else None  # read once: files, compression, damage
         self.kind, self.files, self.warnings = _bag_files(self.path, meta)

@@ -39,7 +39,8 @@ OUTPUTS = ("camera.yaml", "images.txt", "groundtruth.txt", "reconstruction.json"
 def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[float, np.ndarray]], Camera | None]:
     """(stamp, image) of every frame of ``source`` and its calibration (``--camera``'s when given)."""
     camera = read_camera_yaml(args.camera) if args.camera else None
-    if source.suffix in BAG_SUFFIXES or (source / "metadata.yaml").is_file():
+    path, frames = parse_seq_spec(str(source))
+    if any(p.suffix in BAG_SUFFIXES or (p / "metadata.yaml").is_file() for p in (source, Path(path))):
         reader = BagReader(source)
         frames, _ = read_frames(reader, args.image_topic)
         first: dict = {}
@@ -57,7 +58,6 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
             raise ValueError(f"{source}: no readable frame with a calibration (no camera_info? give --camera)")
         camera = camera or first.get("camera")
         return _chain(head, it), camera
-    path, frames = parse_seq_spec(str(source))
     path = Path(path)
     if (path / "images.txt").is_file() or (path / "camera.yaml").is_file() or not _images_in(path):
         seq = Sequence.load(path)  # its ground truth, if any, is not looked at
