@@ -83,12 +83,17 @@ def gaps(text: str) -> tuple[int, ...]:
 
 
 def correspondence_counts(text: str) -> tuple[int, ...]:
-    """``--sizes``' value, '1000,2000': counts >= 1 (argparse names the option when it is not)."""
+    """``--sizes``' value, '1000,2000': counts from 1 to the node's largest ``max_keypoints`` (a count beyond it
+    times what the node never runs, and the loop baseline, quadratic, for hours)."""
+    most = BY_NAME["max_keypoints"].range[1]
     try:
-        return tuple(whole(1)(s) for s in text.split(","))
+        counts = tuple(whole(1)(s) for s in text.split(","))
     except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected correspondence counts >= 1, comma-separated "
-                                         "(1000,2000)") from None
+        counts = ()
+    if not counts or max(counts) > most:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected correspondence counts from 1 to {most} (the node's "
+                                         "largest max_keypoints), comma-separated (1000,2000)")
+    return counts
 
 
 def gt_frames(text: str) -> tuple[str, str]:
