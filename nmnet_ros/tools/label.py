@@ -39,7 +39,7 @@ OUTPUTS = ("camera.yaml", "images.txt", "groundtruth.txt", "reconstruction.json"
 def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[float, np.ndarray]], Camera | None]:
     """(stamp, image) of every frame of ``source`` and its calibration (``--camera``'s when given)."""
     camera = read_camera_yaml(args.camera) if args.camera else None
-    path, frames = parse_seq_spec(str(source))
+    path, chosen = parse_seq_spec(str(source))
     if any(p.suffix in BAG_SUFFIXES or (p / "metadata.yaml").is_file() for p in (source, Path(path))):
         reader = BagReader(source)
         frames, _ = read_frames(reader, args.image_topic)
@@ -61,7 +61,7 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
     path = Path(path)
     if (path / "images.txt").is_file() or (path / "camera.yaml").is_file() or not _images_in(path):
         seq = Sequence.load(path)  # its ground truth, if any, is not looked at
-        return ((float(seq.stamps[i]), seq.image(i)) for i in seq.frames(frames)), camera or seq.camera
+        return ((float(seq.stamps[i]), seq.image(i)) for i in seq.frames(chosen)), camera or seq.camera
     files = _images_in(source)
     if camera is None:
         raise ValueError(f"{source}: a folder of images needs --camera (a camera_info YAML) for its calibration")
