@@ -97,6 +97,7 @@ def test_train_few_steps_then_resume(tmp_path):
     hist = json.loads((tmp_path / "history.json").read_text())["epochs"]
     assert [h["epoch"] for h in hist] == [0, 1] and s2["best_val_f1_at_0.5"] >= s["best_val_f1_at_0.5"]
     assert not any("warning" in line for line in said), said  # more --epochs: what --resume is for
+    assert any(line.startswith("resumed after epoch 1, best val F") for line in said), said  # it said epoch 0
     said.clear()  # other labels or validation frames: best.pt's F is then another measure, said
     train(spec_train, [f"{spec_val[0][:-4]}:2-4"], tmp_path, {**cfg, "epochs": 3, "label_threshold": 5e-5}, resume=True,
           cache_dir=tmp_path / "cache", log=said.append)
@@ -106,6 +107,11 @@ def test_train_few_steps_then_resume(tmp_path):
         "which other --val, --label-threshold or --detector values make a different measure; start a new --out to "
         "compare them"], said
     assert 0 < s2["score_threshold"] < 1 and s2["val_f1"] >= s2["best_val_f1_at_0.5"] - 1e-9
+    said.clear()  # a resume with no epoch left said only "resumed after epoch 2", then calibrated
+    train(spec_train, [f"{spec_val[0][:-4]}:2-4"], tmp_path, {**cfg, "epochs": 3, "label_threshold": 5e-5}, resume=True,
+          cache_dir=tmp_path / "cache", log=said.append)
+    assert "--epochs 3: the run has done them all, so none is trained; give more to go on" in said, said
+    assert len(json.loads((tmp_path / "history.json").read_text())["epochs"]) == 3
 
 
 @pytest.mark.parametrize("tool, argv", [(train_args, ["--train", "a", "--val", "b", "--out", "c"]),

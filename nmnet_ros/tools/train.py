@@ -500,7 +500,9 @@ def train(train_specs: list[str], val_specs: list[str], out_dir: Path, config: d
         rng.bit_generator.state = ck["rng"]
         torch.set_rng_state(ck["torch_rng"])
         start_epoch, best_f, history = ck["epoch"] + 1, ck["best_f"], ck["history"]
-        log(f"resumed after epoch {ck['epoch']}, best val F {best_f:.2f}")
+        log(f"resumed after epoch {start_epoch}, best val F {best_f:.2f}")  # counted from 1, as the epochs' lines
+        if start_epoch >= c["epochs"]:
+            log(f"--epochs {c['epochs']}: the run has done them all, so none is trained; give more to go on")
         if changed := options_changed(ck, record):
             log(f"warning: resumed with other options than the run was started with ({'; '.join(changed)}): best.pt "
                 "is kept while validation F beats the run's best so far, which other --val, --label-threshold or "
