@@ -133,6 +133,10 @@ def test_a_folder_of_images_skips_one_that_does_not_decode_and_refuses_another_s
     with pytest.raises(ValueError, match=f"{folder / '0004.png'}: 640x480, but --camera {calibration} is for 320x240 "
                                          "images: give the calibration of the camera that took them"):
         list(frames_of(folder, args)[0])
+    write_camera_yaml(calibration, Camera(CAMERA.K))  # no image size: the first image's is every image's
+    with pytest.raises(ValueError, match=f"{folder / '0004.png'}: 640x480, but the folder's first image is 320x240: "
+                                         "one camera's images are one size"):
+        list(frames_of(folder, args)[0])
 
 
 def test_a_range_or_a_truth_that_does_not_fit_the_recording_is_refused_before_the_reconstruction(tmp_path):

@@ -70,7 +70,9 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
 
 def _folder_frames(files: list[Path], camera: Camera, calibration: Path, fps: float) -> Iterator[tuple[float, np.ndarray]]:
     """(stamp, image) of a folder of images, the k-th by name stamped k / ``fps``. An image that does not decode is
-    skipped with a warning (the others keep their stamps); one of another size than ``calibration`` says is an error."""
+    skipped with a warning (the others keep their stamps); one of another size than ``calibration`` says (or, where
+    it says none, than the first image) is an error."""
+    size = (camera.width, camera.height) if camera.width > 0 else None
     for k, path in enumerate(files):
         try:
             image = decode_image(path)
@@ -78,9 +80,12 @@ def _folder_frames(files: list[Path], camera: Camera, calibration: Path, fps: fl
             print(f"warning: {e}: skipped", file=sys.stderr)
             continue
         (h, w) = image.shape[:2]
-        if camera.width > 0 and (w, h) != (camera.width, camera.height):
-            raise ValueError(f"{path}: {w}x{h}, but --camera {calibration} is for {camera.width}x{camera.height} "
-                             "images: give the calibration of the camera that took them")
+        if size is not None and (w, h) != size:
+            raise ValueError(f"{path}: {w}x{h}, but " + (
+                f"--camera {calibration} is for {size[0]}x{size[1]} images: give the calibration of the camera that "
+                "took them" if camera.width > 0 else
+                f"the folder's first image is {size[0]}x{size[1]}: one camera's images are one size"))
+        size = size or (w, h)
         yield k / fps, image
 
 
