@@ -2,15 +2,16 @@
 
 What ``nmnet label`` builds on: a robot team rarely has ground-truth poses, but epipolar labels need poses up to
 scale only, which a reconstruction of the recording's own frames gives. The calibration is held fixed (the
-robot's camera_info), COLMAP's SIFT features are matched between neighbouring keyframes, and the largest connected
-model is kept. :func:`quality_problem` says when a reconstruction cannot be trusted.
+robot's camera_info; or refined, and returned with the poses), COLMAP's SIFT features are matched between
+neighbouring keyframes, and the largest connected model is kept. :func:`quality_problem` says when a
+reconstruction cannot be trusted.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ class Reconstruction:
     mean_reprojection_px: float
     points: int
     models: int  # connected models COLMAP made (the largest is kept)
+    camera: Camera  # the calibration the poses are in: the one given, or as the mapper refined it
 
     @property
     def registered(self) -> int:
@@ -48,6 +50,18 @@ def colmap_camera(camera: Camera) -> tuple[str, list[float]]:
     if camera.dist.size <= 4 or not any(d[4:8]):
         return "OPENCV", [fx, fy, cx, cy, *d[:4]]
     return "FULL_OPENCV", [fx, fy, cx, cy, *d[:8]]  # k1 k2 p1 p2 k3 k4 k5 k6, as rational_polynomial's first eight
+
+
+def refined_camera(camera: Camera, params: Sequence[float]) -> Camera:
+    """``camera`` with the intrinsics COLMAP refined, ``params`` in :func:`colmap_camera`'s order for its model. A
+    plumb_bob calibration COLMAP fitted as FULL_OPENCV comes back rational_polynomial (its k4..k6 refined too)."""
+    fx, fy, cx, cy, *extra = (float(v) for v in params)
+    dist = np.zeros(max(camera.dist.size, len(extra)))
+    dist[:camera.dist.size] = camera.dist
+    dist[:len(extra)] = extra
+    model = "rational_polynomial" if camera.model == "plumb_bob" and dist.size > 5 else camera.model
+    K = np.array([[fx, camera.K[0, 1], cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    return replace(camera, K=K, dist=dist, model=model)
 
 
 MAPPERS = ("global", "incremental")
@@ -116,8 +130,9 @@ def reconstruct(image_dir: Path, names: list[str], camera: Camera, work_dir: Pat
             T = np.eye(4)
             T[:3] = image.cam_from_world().matrix()
             poses[image.name] = np.linalg.inv(T)
+    (colmap,) = rec.cameras.values()  # one camera for every keyframe (CameraMode.SINGLE)
     return Reconstruction(poses, len(names), float(rec.compute_mean_reprojection_error()), rec.num_points3D(),
-                          len(models))
+                          len(models), refined_camera(camera, colmap.params) if refine_intrinsics else camera)
 
 
 MIN_REGISTERED_SHARE = 0.6  # of the keyframes

@@ -284,9 +284,10 @@ def label_recording(args: argparse.Namespace) -> int:
         note = {"what": f"poses reconstructed by COLMAP's {args.mapper} mapper (pycolmap), not measured: scale arbitrary",
                 "source": str(source), "keyframes": len(names), "registered": rec.registered,
                 "mean_reprojection_px": rec.mean_reprojection_px, "points": rec.points, "models": rec.models,
-                "kept": "the largest model", "intrinsics": "refined" if args.refine_intrinsics else "fixed",
+                "kept": "the largest model", "intrinsics": "refined (camera.yaml holds them)" if args.refine_intrinsics
+                else "fixed",
                 "interval_s": args.interval, "min_flow_px": args.min_flow}
-        write_sequence(building, camera, stamps, names, rec.poses, note)
+        write_sequence(building, rec.camera, stamps, names, rec.poses, note)
         if out.exists():
             shutil.rmtree(out)  # an earlier label run's (checked above)
         building.rename(out)

@@ -271,7 +271,8 @@ def label(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mapper", choices=("global", "incremental"), default="global",
                    help="COLMAP's global mapper (GLOMAP; steadier on driving sequences) or its incremental one")
     p.add_argument("--refine-intrinsics", action="store_true",
-                   help="let the mapper refine the focal length and distortion (default: the calibration is fixed)")
+                   help="let the mapper refine the focal length and distortion, written to the folder's camera.yaml "
+                   "(default: the calibration is fixed)")
 
 
 def add_max_view_angle(p: argparse.ArgumentParser) -> None:
