@@ -51,6 +51,7 @@ def test_cli_without_a_command_fails_naming_the_commands():
     (["train", "--train", "d", "--val", "d", "--out", "o", "--seed", "x"], "--seed", "'x': expected a whole number >= 0"),
     (["neighbors", "d", "--k", "0"], "--k", "k: 0 is out of range 2 .. 16"),
     (["bench", "--repeat", "0"], "--repeat", "'0': expected a whole number >= 1"),
+    (["label", "r", "o", "--max-frames", "5"], "--max-frames", "'5': expected a whole number >= 10"),  # never enough
     (["bench", "--sizes", "abc"], "--sizes", "'abc': expected correspondence counts from 1 to 8000"),  # was "invalid literal"
     (["bench", "--sizes", "1000,0"], "--sizes", "'1000,0': expected correspondence counts from 1 to 8000"),  # was a row of 0s
     (["bench", "--sizes", "100000"], "--sizes", "'100000': expected correspondence counts from 1 to 8000 (the node's "

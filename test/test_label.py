@@ -151,6 +151,8 @@ def test_a_range_or_a_truth_that_does_not_fit_the_recording_is_refused_before_th
     r = nmnet("label", str(bag), str(tmp_path / "b"), "--truth", str(data_dir("strecha-entry-p10")))
     assert r.returncode == 2 and "reconstructing" not in r.stderr, r.stderr
     assert f"--truth {data_dir('strecha-entry-p10')}: none of its frames has a keyframe's stamp" in r.stderr
+    r = nmnet("label", str(bag), str(tmp_path / "c"), "--min-flow", "300")  # it named only --interval
+    assert r.returncode == 2 and "give a longer recording or a shorter --interval or a lower --min-flow" in r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]
 
 

@@ -266,7 +266,8 @@ def label_recording(args: argparse.Namespace) -> int:
                 bar.update(1)
         if len(names) < MIN_REGISTERED:  # fewer never pass quality_problem: said before the reconstruction's work
             raise ReconstructionError(f"{source}: {len(names)} keyframe(s), and a reconstruction needs at least "
-                                      f"{MIN_REGISTERED}; give a longer recording or a shorter --interval")
+                                      f"{MIN_REGISTERED}; give a longer recording or a shorter --interval"
+                                      + (" or a lower --min-flow" if args.min_flow > 0 else ""))
         if np.median(parallax) < MIN_PARALLAX_PX:
             raise ReconstructionError(
                 f"{source}: the camera barely moves between keyframes (median parallax {np.median(parallax):.2f} px, "

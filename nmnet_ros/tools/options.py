@@ -16,6 +16,7 @@ from pathlib import Path
 
 from ..core.settings import BY_NAME, METHODS, POSE_ESTIMATORS, for_tool, problem
 from ..io.datasets import FOLDERS_READ, LABEL_THRESHOLD, MAX_VIEW_ANGLE_DEG
+from ..io.reconstruction import MIN_REGISTERED
 
 SAMPLE_BAG = Path(__file__).parents[1] / "sample" / "kitti07_120-159"
 SHIPPED_WEIGHTS = Path(__file__).parents[1] / "weights" / "nmnet.pt"
@@ -262,7 +263,8 @@ def label(p: argparse.ArgumentParser) -> None:
                    help="a keyframe at least this many seconds after the previous one")
     p.add_argument("--min-flow", type=bounded(float, 0.0, "pixels, >= 0"), default=0.0, metavar="PX",
                    help="and only once the image has moved this many pixels (median corner motion) since it; 0 = off")
-    p.add_argument("--max-frames", type=whole(2), default=400, help="keyframes at most (COLMAP's time grows with them)")
+    p.add_argument("--max-frames", type=whole(MIN_REGISTERED), default=400,
+                   help=f"keyframes at most (COLMAP's time grows with them; a reconstruction needs {MIN_REGISTERED})")
     p.add_argument("--fps", type=bounded(float, 0.0, "frames per second > 0", strict=True), default=10.0,
                    help="a folder of images: the frame rate its stamps are made with")
     p.add_argument("--json", type=file_path, default=None, help="write the reconstruction's summary (and --truth's check) as JSON")
