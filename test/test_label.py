@@ -116,6 +116,16 @@ def test_frames_at_the_keyframe_interval_are_every_one_a_keyframe(start):
     assert [s for s, _ in pick_keyframes(iter(frames), 0.2, 0.0, 400, CAMERA, [])] == [s for s, _ in frames[::2]]
 
 
+def test_keyframes_that_run_out_before_the_recording_ends_are_said(capsys):
+    """--max-frames stopped reading the recording without a word: a long run was labelled for its first minute."""
+    frames = [(k / 10, textured(k)) for k in range(20)]
+    assert len(list(pick_keyframes(iter(frames), 0.1, 0.0, 20, CAMERA, []))) == 20
+    assert capsys.readouterr().err == ""
+    assert len(list(pick_keyframes(iter(frames), 0.1, 0.0, 12, CAMERA, []))) == 12
+    assert ("warning: --max-frames 12 keyframes reached 1.1 s into the recording; the rest of it is not labelled: "
+            "raise --max-frames, or --interval to spread them over it") in capsys.readouterr().err
+
+
 def test_a_folder_of_images_skips_one_that_does_not_decode_and_refuses_another_size(tmp_path, capsys):
     """A corrupt file among the images ended the run with a traceback (cv2.imread's None); it is now skipped with a
     warning naming it, the others keeping their stamps. An image of another size than --camera says is refused."""

@@ -128,13 +128,17 @@ def motion_px(a: np.ndarray, b: np.ndarray, camera: Camera) -> tuple[float, floa
 def pick_keyframes(frames: Iterator[tuple[float, np.ndarray]], interval: float, min_flow: float, max_frames: int,
                    camera: Camera, parallax: list[float]) -> Iterator[tuple[float, np.ndarray]]:
     """Frames at least ``interval`` s after the last keyframe and, with ``min_flow``, moved at least that many pixels
-    from it; at most ``max_frames``. Appends each keyframe's parallax to the one before to ``parallax``."""
-    last, last_gray, n = None, None, 0
+    from it; at most ``max_frames`` (a warning says where they ran out). Appends each keyframe's parallax to the one
+    before to ``parallax``."""
+    first, last, last_gray, n = None, None, None, 0
     for stamp, image in frames:
-        if n >= max_frames:
-            return
         if last is not None and stamp - last < interval - STAMP_ROUNDING_S:
             continue
+        if n >= max_frames:  # a keyframe more, had there been room: said, as the rest goes unlabelled
+            print(f"warning: --max-frames {max_frames} keyframes reached {last - first:.1f} s into the recording; the "
+                  "rest of it is not labelled: raise --max-frames, or --interval to spread them over it", file=sys.stderr)
+            return
+        first = stamp if first is None else first
         gray = _gray(image)
         if last_gray is not None:  # the corners are found and tracked once for both tests
             flow, moved = motion_px(last_gray, gray, camera)
