@@ -553,6 +553,8 @@ def test_missing_bag_and_unknown_format(tmp_path):
         with pytest.raises(BagError, match=f"{ranged}:0-10: a bag is read whole, it takes no frame range .* nmnet "
                                            "replay reads a part of it with --start and --duration"):
             BagReader(f"{ranged}:0-10")
+    with pytest.raises(BagError, match=r"kitti07_120-159:abc: no such bag$"):  # not a range: no bag by that name
+        BagReader(f"{SAMPLE_BAG}:abc")
 
 
 def test_a_bag_whose_content_is_not_its_extensions_format_is_named(bags, tmp_path):

@@ -7,6 +7,7 @@ several). Writing a sequence folder as a bag is :mod:`nmnet_ros.tools.make_bag`.
 
 from __future__ import annotations
 
+import contextlib
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -190,8 +191,12 @@ class BagReader:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         if not self.path.exists():
-            whole = re.fullmatch(r"(.+):\d+-\d+", str(self.path))
-            if whole and Path(whole[1]).exists():
+            from .pairs import parse_seq_spec  # on this error path only: pairs loads the feature stack
+
+            whole, frames = str(self.path), None
+            with contextlib.suppress(ValueError):  # a malformed range: no bag by that name either
+                whole, frames = parse_seq_spec(whole)
+            if frames is not None and Path(whole).exists():
                 raise BagError(f"{self.path}: a bag is read whole, it takes no frame range (:a-b is a sequence folder's); "
                                "nmnet replay reads a part of it with --start and --duration")
             raise BagError(f"{self.path}: no such bag")
