@@ -40,7 +40,8 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
     """(stamp, image) of every frame of ``source`` and its calibration (``--camera``'s when given)."""
     camera = read_camera_yaml(args.camera) if args.camera else None
     path, chosen = parse_seq_spec(str(source))
-    if any(p.suffix in BAG_SUFFIXES or (p / "metadata.yaml").is_file() for p in (source, Path(path))):
+    path = Path(path)  # the bag or folder, without a frame range
+    if path.suffix in BAG_SUFFIXES or (path / "metadata.yaml").is_file():
         reader = BagReader(source)
         frames, _ = read_frames(reader, args.image_topic)
         first: dict = {}
@@ -58,7 +59,6 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
             raise ValueError(f"{source}: no readable frame with a calibration (no camera_info? give --camera)")
         camera = camera or first.get("camera")
         return _chain(head, it), camera
-    path = Path(path)
     if (path / "images.txt").is_file() or (path / "camera.yaml").is_file() or not _images_in(path):
         seq = Sequence.load(path)  # its ground truth, if any, is not looked at
         return ((float(seq.stamps[i]), seq.image(i)) for i in seq.frames(chosen)), camera or seq.camera
@@ -184,15 +184,15 @@ def keyframes_in(stamps: list[float] | np.ndarray, truth: Sequence, spec: str) -
     return found
 
 
-def truth_check(out: Path, truth_spec: str) -> dict:
-    """How the labels of the folder ``out`` agree with the real ground truth of ``truth_spec`` (a sequence folder
-    holding the same frames, by stamp): each consecutive keyframe pair's rotation and translation-direction error,
+def truth_check(out: Path, truth: Sequence, truth_spec: str) -> dict:
+    """How the labels of the folder ``out`` agree with ``truth``, the real ground truth of the sequence folder
+    ``truth_spec`` (holding the same frames, by stamp): each consecutive keyframe pair's rotation and translation-direction error,
     and the share of its nearest-neighbour matches (the network's input) whose epipolar label is the same."""
     from ..core.detectors import make_detector
     from ..io.cache import FeatureCache
     from ..io.pairs import make_pair
 
-    labelled, truth = Sequence.load(out), truth_sequence(truth_spec)
+    labelled = Sequence.load(out)
     cache = FeatureCache(make_detector(FRONTEND_DEFAULTS["detector"], {"max_keypoints": FRONTEND_DEFAULTS["max_keypoints"]}))
     rot, direction, same, total = [], [], 0, 0
     for i, a, b in keyframes_in(labelled.stamps, truth, truth_spec):
@@ -300,8 +300,8 @@ def label_recording(args: argparse.Namespace) -> int:
         shutil.rmtree(building, ignore_errors=True)
     print(f"label: {rec.registered} of {len(names)} keyframes registered, mean reprojection error "
           f"{rec.mean_reprojection_px:.2f} px -> {out}")
-    if args.truth:
-        note["truth_check"] = check = truth_check(out, args.truth)
+    if truth is not None:
+        note["truth_check"] = check = truth_check(out, truth, args.truth)
         print(f"label: against {args.truth}, {check['pairs']} consecutive keyframe pairs: median rotation error "
               f"{check['median_rot_deg']:.3f} deg, translation direction {check['median_trans_deg']:.2f} deg; the "
               f"same epipolar label on {check['label_agreement_percent']:.1f} % of {check['matches']} matches")
