@@ -55,6 +55,31 @@ def test_an_odd_width_yuv422_image_is_refused():
         image_to_array(2, 7, "yuv422", 16, bytes(32))
 
 
+@pytest.mark.parametrize("encoding", ["nv12", "nv21", "NV24"])
+@pytest.mark.parametrize("layout", ["tight", "padded rows", "step of two channels"])
+def test_semi_planar_yuv_is_read_as_its_luma_plane(encoding, layout):
+    """NV12/NV21/NV24 (phone, Jetson and V4L2 cameras) were refused as unsupported; their luma plane is the grey image
+    the detector reads. The step is the luma rows' stride; a driver that gave width * 2 (two channels) with tightly
+    packed rows is read too."""
+    h, w = 6, 8
+    bgr = np.random.default_rng(0).integers(0, 256, (h, w, 3), np.uint8)
+    luma = cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_I420)[:h]  # BT.601 Y, as a camera's encoder writes it
+    stride = {"tight": w, "padded rows": w + 4, "step of two channels": w}[layout]
+    chroma_rows = h if encoding == "NV24" else h // 2
+    chroma_bytes = chroma_rows * stride * (2 if encoding == "NV24" else 1)
+    frame = np.full(h * stride + chroma_bytes, 128, np.uint8)
+    frame[: h * stride].reshape(h, stride)[:, :w] = luma
+    step = 2 * w if layout == "step of two channels" else stride
+    img = image_to_array(h, w, encoding, step, frame.tobytes())
+    assert img.shape == (h, w) and img.dtype == np.uint8
+    np.testing.assert_array_equal(img, luma)
+    if layout == "tight" and encoding != "NV24":  # the grey image OpenCV reads from the same frame
+        np.testing.assert_array_equal(img, cv2.cvtColor(frame.reshape(-1, w), cv2.COLOR_YUV2GRAY_NV21))
+    with pytest.raises(ImageError, match=f"image data has {frame.size - 1} bytes, expected .* for a 8x6 {encoding} "
+                                         f"frame of rows of {stride} bytes .*; the message is truncated"):
+        image_to_array(h, w, encoding, step, frame[:-1].tobytes())
+
+
 @pytest.mark.parametrize("encoding, order, dtype", [
     ("rgb8", "rgb", np.uint8), ("bgra8", "bgra", np.uint8), ("rgba8", "rgba", np.uint8),
     ("bgr16", "bgr", np.uint16), ("rgb16", "rgb", np.uint16), ("bgra16", "bgra", np.uint16), ("rgba16", "rgba", np.uint16),
@@ -82,6 +107,7 @@ def test_rows_with_padding_and_big_endian_are_read_right():
     ((2, 2, "bayer_xyz8", 2, bytes(4)), "unsupported image encoding 'bayer_xyz8'; publish one of mono8"),
     ((2, 4, "bayer_rggb16", 8, bytes(10)), "the message is truncated"),
     ((2, 4, "bgr8", 4, bytes(24)), "step 4 is smaller than width*channels*bytes = 12"),
+    ((2, 4, "nv21", 3, bytes(24)), "step 3 is smaller than the width 4 of nv21's luma plane"),
 ])
 def test_bad_payloads_say_what_is_wrong(fields, needle):
     with pytest.raises(ImageError) as err:

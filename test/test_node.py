@@ -464,7 +464,7 @@ def test_a_reliable_camera_with_large_raw_frames_is_followed(ros, tmp_path):
     """qos auto subscribes reliable to a reliable camera, so frames over 0.5 MB arrive (best effort loses them).
 
     The frames are the raw encodings of machine-vision drivers: bgr8 (1.4 MB), a 12-bit camera's
-    mono16 (0.9 MB) and a Bayer mosaic.
+    mono16 (0.9 MB), a Bayer mosaic and NV21.
     """
     seq = Sequence.load(data_dir("kitti-07"))
     with node_and_peer(ros, tmp_path, [], reliable=True) as (node, peer):
@@ -475,6 +475,10 @@ def test_a_reliable_camera_with_large_raw_frames_is_followed(ros, tmp_path):
         peer.first_frame(kitti_info(seq), image_msg(colour[0], 1.0))
         frames = {2.0: image_msg(colour[1], 2.0), 3.0: image_msg(seq.image(82).astype(np.uint16) << 4, 3.0),
                   4.0: image_msg(seq.image(83), 4.0, encoding="bayer_rggb8")}
+        luma = seq.image(84)  # a phone or Jetson camera's semi-planar YUV: luma rows, then half-height chroma rows
+        frames[5.0] = image_msg(np.vstack([luma, np.full(((luma.shape[0] + 1) // 2, luma.shape[1]), 128, np.uint8)]),
+                                5.0, encoding="nv21")
+        frames[5.0].height = luma.shape[0]
         for stamp, msg in frames.items():
             peer.pub_img.publish(msg)
             assert peer.wait_result_for(stamp), f"no result for the {msg.encoding} frame ({len(msg.data)} bytes)"

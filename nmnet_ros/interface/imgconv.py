@@ -46,6 +46,10 @@ ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
     "yuv422_yuy2": (2, np.dtype(np.uint8), cv2.COLOR_YUV2BGR_YUY2),
     "yuyv": (2, np.dtype(np.uint8), cv2.COLOR_YUV2BGR_YUY2),
 }
+# semi-planar YUV (phone, Jetson and V4L2 cameras): a full-size luma plane, then interleaved chroma at half (4:2:0) or
+# full (4:4:4) resolution; value: chroma rows per luma row and their bytes per luma byte. Only the luma plane is read:
+# it is the grey image the detector works on (what OpenCV's COLOR_YUV2GRAY_NV21 returns).
+SEMI_PLANAR: dict[str, tuple[float, int]] = {"nv12": (0.5, 1), "nv21": (0.5, 1), "nv24": (1.0, 2)}
 
 
 def _bytes(data: Buffer) -> np.ndarray:
@@ -60,10 +64,13 @@ class ImageError(ValueError):
 def image_to_array(height: int, width: int, encoding: str, step: int, data: Buffer, is_bigendian: int = 0) -> np.ndarray:
     """Image message fields -> (H,W) or (H,W,3) array (BGR for colour), zero-copy where possible."""
     enc = encoding.lower()
-    if enc not in ENCODINGS:
-        raise ImageError(f"unsupported image encoding {encoding!r}; publish one of {', '.join(ENCODINGS)}")
+    if enc not in ENCODINGS and enc not in SEMI_PLANAR:
+        raise ImageError(f"unsupported image encoding {encoding!r}; publish one of "
+                         f"{', '.join([*ENCODINGS, *SEMI_PLANAR])}")
     if height <= 0 or width <= 0:
         raise ImageError(f"image is {width}x{height}: nothing to process (check the camera driver)")
+    if enc in SEMI_PLANAR:
+        return _luma(height, width, encoding, step, _bytes(data))
     ch, dtype, conv = ENCODINGS[enc]
     if ch == 2 and width % 2:
         raise ImageError(f"{encoding} packs two pixels in four bytes, so its width must be even, got {width}")
@@ -82,6 +89,24 @@ def image_to_array(height: int, width: int, encoding: str, step: int, data: Buff
     if conv is not None:
         arr = cv2.cvtColor(np.ascontiguousarray(arr), conv)
     return arr
+
+
+def _luma(height: int, width: int, encoding: str, step: int, buf: np.ndarray) -> np.ndarray:
+    """The luma plane of a semi-planar YUV frame as a mono8 (H,W) view. ``step`` is the luma rows' stride (V4L2's
+    bytesperline, as rviz reads it); a step of twice the width (a driver that counted two channels) with data too
+    short for it is read as rows of ``width`` bytes."""
+    rows, per_byte = SEMI_PLANAR[encoding.lower()]
+
+    def frame_bytes(stride: int) -> int:
+        return height * stride + int(np.ceil(height * rows)) * stride * per_byte
+
+    if step < width:
+        raise ImageError(f"step {step} is smaller than the width {width} of {encoding}'s luma plane")
+    stride = width if step == 2 * width and buf.size < frame_bytes(step) else step
+    if buf.size < frame_bytes(stride):
+        raise ImageError(f"image data has {buf.size} bytes, expected {frame_bytes(stride)} for a {width}x{height} "
+                         f"{encoding} frame of rows of {stride} bytes (luma, then chroma); the message is truncated")
+    return buf[: height * stride].reshape(height, stride)[:, :width]
 
 
 COMPRESSED_FORMATS = ("jpeg", "png")  # what CompressedImage may hold: image_transport's compressed codecs
