@@ -149,6 +149,22 @@ def test_a_folder_of_images_skips_one_that_does_not_decode_and_refuses_another_s
         list(frames_of(folder, args)[0])
 
 
+def test_an_option_for_another_kind_of_recording_is_said_to_be_ignored(tmp_path, capsys):
+    """--fps (a folder of images' stamps) given for a bag or a sequence folder, and --image-topic given for a folder,
+    did nothing without a word: the user meant something by them."""
+    bag = tmp_path / "run.mcap"
+    assert make_bag(data_dir("kitti-07"), bag, frames=range(60, 62)) == 2
+    for source, option, warned in ((bag, "fps", True), (data_dir("kitti-07"), "fps", True),
+                                   (data_dir("kitti-07"), "image_topic", True), (bag, "image_topic", False)):
+        given = {"fps": None, "image_topic": None, option: 30.0 if option == "fps" else "/camera/image_raw"}
+        args = argparse.Namespace(camera=None, **given)
+        frames, _ = frames_of(source, args)
+        assert len(list(frames)) >= 2
+        flag = "--" + option.replace("_", "-")
+        what = "stamps a folder of images" if option == "fps" else "names a bag's topic"
+        assert (f"warning: {flag} {what}; {source} is not one: {flag} is ignored" in capsys.readouterr().err) == warned
+
+
 def test_a_range_or_a_truth_that_does_not_fit_the_recording_is_refused_before_the_reconstruction(tmp_path):
     """`label kitti-07:0-3000` (160 frames) ended in an IndexError traceback; a --truth folder of other frames was
     found out after the reconstruction's minutes. Both are said before it, and leave no output."""

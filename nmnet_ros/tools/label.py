@@ -29,6 +29,7 @@ from ..io.outputs import not_an_input, output_file, output_folder, write_json, w
 from ..io.pairs import parse_seq_spec
 from ..io.reconstruction import MIN_REGISTERED, STAGES, ReconstructionError, quality_problem, reconstruct
 from . import fleet
+from .options import DEFAULT_FPS
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
 STAMP_ROUNDING_S = 1e-6  # stamps as float seconds: 0.7 - 0.6 < 0.1, and ROS times of ~1.7e9 s round to 2.4e-7 s
@@ -41,7 +42,13 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
     camera = read_camera_yaml(args.camera) if args.camera else None
     path, chosen = parse_seq_spec(str(source))
     path = Path(path)  # the bag or folder, without a frame range
-    if path.suffix in BAG_SUFFIXES or (path / "metadata.yaml").is_file():
+    bag = path.suffix in BAG_SUFFIXES or (path / "metadata.yaml").is_file()
+    images = not bag and not _sequence_folder(path)
+    for option, value, applies, what in (("--fps", args.fps, images, "stamps a folder of images"),
+                                         ("--image-topic", args.image_topic, bag, "names a bag's topic")):
+        if value is not None and not applies:  # given for nothing: said, as the user meant something by it
+            print(f"warning: {option} {what}; {source} is not one: {option} is ignored", file=sys.stderr)
+    if bag:
         reader = BagReader(source)
         frames, _ = read_frames(reader, args.image_topic)
         first: dict = {}
@@ -59,13 +66,18 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
             raise ValueError(f"{source}: no readable frame with a calibration (no camera_info? give --camera)")
         camera = camera or first.get("camera")
         return _chain(head, it), camera
-    if (path / "images.txt").is_file() or (path / "camera.yaml").is_file() or not _images_in(path):
+    if not images:
         seq = Sequence.load(path)  # its ground truth, if any, is not looked at
         return ((float(seq.stamps[i]), seq.image(i)) for i in seq.frames(chosen)), camera or seq.camera
     files = _images_in(source)
     if camera is None:
         raise ValueError(f"{source}: a folder of images needs --camera (a camera_info YAML) for its calibration")
-    return _folder_frames(files, camera, args.camera, args.fps), camera
+    return _folder_frames(files, camera, args.camera, args.fps or DEFAULT_FPS), camera
+
+
+def _sequence_folder(path: Path) -> bool:
+    """A sequence folder (or a download of one, or no folder of images at all: Sequence.load says what it is)."""
+    return (path / "images.txt").is_file() or (path / "camera.yaml").is_file() or not _images_in(path)
 
 
 def _folder_frames(files: list[Path], camera: Camera, calibration: Path, fps: float) -> Iterator[tuple[float, np.ndarray]]:

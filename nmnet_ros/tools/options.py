@@ -21,6 +21,7 @@ from ..io.reconstruction import MIN_REGISTERED
 SAMPLE_BAG = Path(__file__).parents[1] / "sample" / "kitti07_120-159"
 SHIPPED_WEIGHTS = Path(__file__).parents[1] / "weights" / "nmnet.pt"
 BAG_FORMATS = ("mcap", "sqlite3", "ros1")
+DEFAULT_FPS = 10.0  # label: a folder of images' frame rate unless --fps says
 NEIGHBORS = ("nmnet", "nmnet-sp")  # the network's variants: compatibility (the paper's), spatial neighbours
 # former names of setting options, still accepted
 ALIASES = {"nmnet_precision": ("--precision",), "pose_estimator": ("--selector",),
@@ -265,8 +266,8 @@ def label(p: argparse.ArgumentParser) -> None:
                    help="and only once the image has moved this many pixels (median corner motion) since it; 0 = off")
     p.add_argument("--max-frames", type=whole(MIN_REGISTERED), default=400,
                    help=f"keyframes at most (COLMAP's time grows with them; a reconstruction needs {MIN_REGISTERED})")
-    p.add_argument("--fps", type=bounded(float, 0.0, "frames per second > 0", strict=True), default=10.0,
-                   help="a folder of images: the frame rate its stamps are made with")
+    p.add_argument("--fps", type=bounded(float, 0.0, "frames per second > 0", strict=True), default=None,
+                   help=f"a folder of images: the frame rate its stamps are made with (default: {DEFAULT_FPS:g})")
     p.add_argument("--json", type=file_path, default=None, help="write the reconstruction's summary (and --truth's check) as JSON")
     p.add_argument("--truth", default=None, metavar="SEQ_DIR",
                    help="check the labels against this sequence folder's real ground truth (the same frames, by stamp)")
