@@ -255,13 +255,13 @@ def test_a_tools_options_may_come_between_its_positionals(capsys):
 
     from nmnet_ros.tools.cli import parse_args
 
-    args = parse_args(["label", "imgs", "--camera", "c.yaml", "out"])
-    assert (args.recordings, args.out_dir, args.camera, args.command) == (["imgs"], Path("out"), Path("c.yaml"), "label")
+    args = parse_args(["label", "a", "--camera", "c.yaml", "b"])
+    assert (args.recordings, args.camera, args.command) == (["a", "b"], Path("c.yaml"), "label")
     assert parse_args(["eval", "a", "--gaps", "1-3", "b", "--seeds", "2"]).seqs == ["a", "b"]
     assert parse_args(["make-bag", "seq", "--compressed", "o.mcap"]).out_positional == Path("o.mcap")
     with pytest.raises(SystemExit):
-        parse_args(["label", "--camera", "c.yaml"])
-    assert "nmnet label: error: the following arguments are required: OUT_DIR" in capsys.readouterr().err
+        parse_args(["replay", "a.mcap", "--camera", "c.yaml"])
+    assert "nmnet replay: error: the following arguments are required: --out" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("methods, said", [("ratio,magsak", "unknown method(s) ['magsak']; choose from nmnet, "),

@@ -267,7 +267,7 @@ def test_the_report_totals_the_finished_recordings_and_names_the_failed(tmp_path
 
 @pytest.mark.slow
 def test_label_takes_many_recordings_too_and_names_the_one_it_refuses(tmp_path):
-    """``nmnet label A B C OUT_DIR``: a labelled sequence folder per recording, as ``nmnet label`` of each alone
+    """``nmnet label A B --out RUN``: a labelled sequence folder per recording, as ``nmnet label`` of each alone
     writes it, and a standing camera refused in its row while the others are labelled."""
     from nmnet_ros.io.datasets import Sequence
 
@@ -276,7 +276,7 @@ def test_label_takes_many_recordings_too_and_names_the_one_it_refuses(tmp_path):
     kitti = data_dir("kitti-07")
     specs = [f"{kitti}:0-14", f"{data_dir('euroc-v101-cam0')}"]
     run = tmp_path / "labelled"
-    r = _nmnet("label", *specs, str(run), "--interval", "0")
+    r = _nmnet("label", *specs, "--out", str(run), "--interval", "0")
     assert r.returncode == 1, r.stdout + r.stderr  # one refused
     rows = {row["name"]: row for row in json.loads((run / "report.json").read_text())["recordings"]}
     assert rows["kitti-07:0-14"]["status"] == "ok" and rows["kitti-07:0-14"]["registered"] == 15
@@ -287,7 +287,8 @@ def test_label_takes_many_recordings_too_and_names_the_one_it_refuses(tmp_path):
 
 @pytest.mark.parametrize(("argv", "message"), [
     (["replay", "--out", "run"], "name a recording"),
-    (["label", "run"], "name a recording"),
+    (["label", "run"], "name the labelled sequence folder to write: --out DIR"),
+    (["label", "--out", "run"], "name a recording to label"),
     (["replay", "--manifest", "missing.txt", "--out", "run"], "--manifest missing.txt: cannot read it"),
     (["label", str(SAMPLE), str(SAMPLE / "metadata.yaml"), "run", "--truth", str(SAMPLE)],
      "--truth: not with several recordings (one --truth folder cannot check"),

@@ -59,7 +59,7 @@ def test_a_bag_is_labelled_with_its_camera_info_and_a_standing_camera_is_refused
     someone else's."""
     bag = tmp_path / "run"
     assert make_bag(data_dir("kitti-07"), bag, "mcap", frames=range(60, 80)) == 20
-    r = nmnet("label", str(bag), str(tmp_path / "from_bag"))
+    r = nmnet("label", str(bag), "--out", str(tmp_path / "from_bag"))  # the other tests: the output's former place
     assert r.returncode == 0, r.stderr
     seq = Sequence.load(tmp_path / "from_bag")
     truth = Sequence.load(data_dir("kitti-07"))
@@ -92,8 +92,8 @@ def test_a_bag_is_labelled_with_its_camera_info_and_a_standing_camera_is_refused
     r = nmnet("label", str(cut), str(tmp_path / "from_cut"))
     assert r.returncode == 0 and "truncated" in r.stderr, r.stderr
     assert 2 <= len(Sequence.load(tmp_path / "from_cut").paths) < 20
-    r = nmnet("label", str(bag), "/proc/nmnet/labelled")  # not writable, even by root
-    assert r.returncode == 2 and "OUT_DIR /proc/nmnet/labelled: cannot write in /proc/nmnet" in r.stderr, r.stderr
+    r = nmnet("label", str(bag), "--out", "/proc/nmnet/labelled")  # not writable, even by root
+    assert r.returncode == 2 and "--out /proc/nmnet/labelled: cannot write in /proc/nmnet" in r.stderr, r.stderr
     images = tmp_path / "images"
     images.mkdir()
     (images / "a.png").write_bytes((data_dir("kitti-07") / "images" / "000000.png").read_bytes())

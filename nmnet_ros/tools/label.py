@@ -4,7 +4,7 @@ Reads a bag (as replay reads it), a sequence folder (its ground truth, if any, i
 with ``--camera``; picks keyframes by time and, optionally, by image motion; reconstructs them with the camera's
 calibration held fixed; and, when the reconstruction passes its quality checks, writes a sequence folder whose
 groundtruth.txt holds the reconstructed poses (scale arbitrary), with ``reconstruction.json`` saying so. That
-folder trains (``nmnet train --train OUT``) and evaluates as any other. The output is built beside ``OUT_DIR`` and
+folder trains (``nmnet train --train OUT``) and evaluates as any other. The output is built beside ``--out`` and
 renamed into place at the end: a failed or interrupted run leaves no output.
 """
 
@@ -226,7 +226,7 @@ def truth_check(out: Path, truth: Sequence, truth_spec: str) -> dict:
 
 def _label_into(args: argparse.Namespace, recording: Path, folder: Path) -> int:
     """One recording of a fleet run: its labelled sequence folder is ``folder``."""
-    args.recordings, args.manifest, args.out_dir = [str(recording)], None, folder
+    args.recordings, args.manifest, args.out = [str(recording)], None, folder
     return label_recording(args)
 
 
@@ -242,21 +242,26 @@ FLEET = fleet.Job("label", _label_into, "reconstruction.json", (
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet label``: one recording here, several (a glob, ``--manifest``) on Ray."""
+    if args.out is None:  # the output's former place: the last positional, after the recordings
+        if len(args.recordings) < (1 if args.manifest else 2):
+            raise ValueError("name the labelled sequence folder to write: --out DIR")
+        args.out = Path(args.recordings.pop())
+    if not args.recordings and not args.manifest:
+        raise ValueError("name a recording to label: a bag, a sequence folder or a folder of images")
     if fleet.several(args.recordings, args.manifest):
-        args.out = Path(args.out_dir)
         return fleet.run(FLEET, args)
     return label_recording(args)
 
 
 def label_recording(args: argparse.Namespace) -> int:
-    """One recording labelled into ``args.out_dir``."""
-    source, out = Path(args.recordings[0]), Path(args.out_dir)
+    """One recording labelled into ``args.out``."""
+    source, out = Path(args.recordings[0]), Path(args.out)
     output_file(args.json, "--json", "label.json", [Path(parse_seq_spec(str(source))[0])])
     ours = (out / "reconstruction.json").is_file() and written_here(out / "reconstruction.json")  # an earlier label run
-    output_folder(out, "OUT_DIR", "the labelled sequence folder", [Path(parse_seq_spec(str(source))[0]), args.camera],
+    output_folder(out, "--out", "the labelled sequence folder", [Path(parse_seq_spec(str(source))[0]), args.camera],
                   () if ours else OUTPUTS)
     if out.is_dir() and any(out.iterdir()) and not ours:
-        raise ValueError(f"OUT_DIR {out} holds files nmnet label did not write: give a new or empty folder")
+        raise ValueError(f"--out {out} holds files nmnet label did not write: give a new or empty folder")
     truth = truth_sequence(args.truth) if args.truth else None
     frames, camera = frames_of(source, args)
     if camera is None:
@@ -265,8 +270,8 @@ def label_recording(args: argparse.Namespace) -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         building = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     except OSError as e:
-        raise OSError(f"OUT_DIR {out}: cannot write in {out.parent} ({e.strerror}): choose a folder you can write") from None
-    not_an_input(building, "OUT_DIR", [source])
+        raise OSError(f"--out {out}: cannot write in {out.parent} ({e.strerror}): choose a folder you can write") from None
+    not_an_input(building, "--out", [source])
     from tqdm import tqdm
 
     try:

@@ -254,8 +254,9 @@ def label(p: argparse.ArgumentParser) -> None:
     p.add_argument("recordings", nargs="*", metavar="RECORDING", help="a bag (.bag, .db3, .mcap or a bag folder), a "
                    "sequence folder (its ground truth is not used), or a folder of images with --camera; several (or a "
                    "quoted glob): labelled in parallel on Ray, one task per recording")
-    p.add_argument("out_dir", type=Path, metavar="OUT_DIR", help="the labelled sequence folder to write; with several "
-                   "recordings the run's folder: OUT_DIR/NAME/ per recording, OUT_DIR/report.json, .md, .png")
+    p.add_argument("--out", type=Path, default=None, help="the labelled sequence folder to write; with several "
+                   "recordings the run's folder: OUT/NAME/ per recording, OUT/report.json, .md, .png (without --out: "
+                   "the last positional, its former place)")
     add_fleet_options(p, "several recordings")
     p.add_argument("--camera", type=Path, default=None, metavar="YAML",
                    help="calibration (a camera_info YAML, Kalibr, EuRoC or OpenCV file), for a recording without one")
