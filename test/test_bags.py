@@ -1090,10 +1090,18 @@ def test_start_and_duration_replay_a_part_of_the_bag(raw_bag, tmp_path):
         assert s["frames"] == 3 and s["processed"] == 3 and s["scored_pairs"] == 2, (mode, s)
         offline_or_live = read_output(tmp_path / "part.mcap")
         assert offline_or_live["/nmnet_node/relative_pose"] == 3, offline_or_live
+    last = stamps[-1] - stamps[0]
     for mode in ([], ["--live"]):  # live said nothing: "0/0 frames"
         r, s = replay_json(raw_bag, tmp_path, "--start", "10", *mode, name="late")
         assert r.returncode == 0 and s["frames"] == 0, s
-        assert "warning: no frame in --start/--duration's 10 .. inf s: the bag ends before" in r.stdout, (mode, r.stdout)
+        assert ("warning: no frame in --start/--duration's 10 .. inf s (seconds after the bag's first frame): the bag "
+                f"ends before, its last frame {last:.3f} s after its first") in r.stdout, (mode, r.stdout)
+        # a window between two frames: it said "the bag ends before"
+        r, s = replay_json(raw_bag, tmp_path, "--start", "0.11", "--duration", "0.05", *mode, name="between")
+        assert r.returncode == 0 and s["frames"] == 0, s
+        assert (f"0.11 .. 0.16 s (seconds after the bag's first frame): it falls between the frames at "
+                f"{stamps[1] - stamps[0]:.3f} s and {stamps[2] - stamps[0]:.3f} s; give a longer --duration") in r.stdout, \
+            (mode, r.stdout)
     for bad in ("-1", "soon", "nan"):
         r = nmnet("replay", str(raw_bag), "--out", str(tmp_path / "none.mcap"), "--start", bad)
         assert r.returncode == 2 and f"argument --start: {bad!r}: expected seconds, a number >= 0" in r.stderr, r.stderr

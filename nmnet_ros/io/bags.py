@@ -483,6 +483,45 @@ def window_side(window: tuple[float, float] | None, first_ns: int, t_ns: int) ->
     return -1 if after < window[0] else 1 if after > window[1] else 0
 
 
+class WindowWatch:
+    """Where a bag's frames fall against ``--start``/``--duration``'s window (seconds after the first frame, by
+    recording time), so that a window holding none can say where they are."""
+
+    def __init__(self, window: tuple[float, float] | None) -> None:
+        self.window = window
+        self.first: int | None = None  # the first frame's recording time (ns)
+        self.before: int | None = None  # the last frame before the window
+        self.after: int | None = None  # the first frame after it
+        self.inside = 0
+
+    def side(self, t_ns: int, frame: bool = True) -> int:
+        """:func:`window_side` of a message recorded at ``t_ns``; ``frame``: an image (the others are not counted,
+        and before the first frame they lie before the window)."""
+        if not frame:
+            return 0 if self.window is None else -1 if self.first is None else window_side(self.window, self.first, t_ns)
+        self.first = t_ns if self.first is None else self.first
+        side = window_side(self.window, self.first, t_ns)
+        if side < 0:
+            self.before = t_ns
+        elif side > 0:
+            self.after = t_ns if self.after is None else self.after
+        else:
+            self.inside += 1
+        return side
+
+    def missed(self) -> str | None:
+        """What to say when the window held no frame (None when it held some, or when there was none)."""
+        if self.window is None or self.inside or self.first is None or self.before is None:
+            return None
+        start, end = self.window
+        at = f"no frame in --start/--duration's {start:g} .. {end:g} s (seconds after the bag's first frame): "
+        before = (self.before - self.first) / 1e9
+        if self.after is None:
+            return at + f"the bag ends before, its last frame {before:.3f} s after its first"
+        return at + (f"it falls between the frames at {before:.3f} s and {(self.after - self.first) / 1e9:.3f} s; "
+                     "give a longer --duration")
+
+
 def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: str | None = None,
                 rectified: bool = False, recorded: bool = False,
                 window: tuple[float, float] | None = None,
@@ -502,7 +541,7 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
     def gen() -> Iterator[Frame]:
         camera, camera_error = None, None
         pending: list[tuple[float, np.ndarray | None, str | None, str]] = []
-        first: int | None = None  # the first frame's recording time (ns)
+        watch = WindowWatch(window)
         for m in reader.messages({t for t in (img_t, info_t) if t}):
             if m.topic == info_t:
                 try:
@@ -510,8 +549,7 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
                 except (CameraError, ValueError) as e:
                     camera_error = str(e)  # the frames keep the last good calibration, if any, and say why not this one
                 continue
-            first = m.log_time_ns if first is None else first
-            if (side := window_side(window, first, m.log_time_ns)) > 0:
+            if (side := watch.side(m.log_time_ns)) > 0:
                 break
             if side < 0:
                 continue
@@ -527,6 +565,8 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
                 yield Frame(s, im, er, camera, camera_error, fid)
         for s, im, er, fid in pending:
             yield Frame(s, im, er, camera, camera_error, fid)
+        if missed := watch.missed():
+            reader.warnings.append(missed)
 
     return gen(), chosen
 

@@ -27,7 +27,7 @@ from ..interface.dds import LARGE_FRAMES_PROFILE, rmw_problem
 from ..interface.imgconv import matches_of_cloud
 from ..interface.params import NODE_NAME
 from ..interface.posemsg import SIGMAS, estimate_of_message
-from ..io.bags import BagError, BagReader, choose_topics, typestore, window_side
+from ..io.bags import BagError, BagReader, WindowWatch, choose_topics, typestore
 from ..io.mcap_out import McapOutput
 from ..io.trajectory import Trajectory
 from .scoring import PairScores, truth_missed
@@ -279,12 +279,9 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
             player.pub_info.publish(camera_info_msg(camera) if camera else ros_msg(first_info))
             player.spin_for(0.2)
         first_ns, t_start = None, time.monotonic()
-        first_frame = None  # the bag's first frame's recording time, where --start/--duration count from
+        watch = WindowWatch(window)  # a calibration before the first frame lies before a window: published above
         for m in reader.messages({t for t in (img_t, info_t) if t}):
-            first_frame = m.log_time_ns if first_frame is None and m.topic == img_t else first_frame
-            if window is not None and first_frame is None:  # a calibration before the first frame: published above
-                continue
-            if (side := window_side(window, first_frame, m.log_time_ns)) > 0:
+            if (side := watch.side(m.log_time_ns, m.topic == img_t)) > 0:
                 break
             if side < 0:
                 continue
@@ -296,6 +293,8 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
             if recorded:
                 msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(m.log_time_ns, 10**9)
             player.publish(msg, m.topic == img_t, camera)
+        if missed := watch.missed():
+            reader.warnings.append(missed)
         if node_proc.poll() is None:
             player.finish()
         player.stats["node_exit"] = node_proc.poll()  # None: still running, as it should be

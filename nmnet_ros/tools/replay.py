@@ -34,7 +34,7 @@ from ..io.outputs import not_a_folder, not_an_input, not_someone_elses, output_f
 from ..io.trajectory import Trajectory, read_tum
 from . import fleet
 from .report import PLOTS, print_scores, print_summary, print_tracks, write_plots
-from .scoring import Run, truth_missed, window_missed
+from .scoring import Run, truth_missed
 
 BASELINE = {"detector": "sift", "pose_estimator": "classic"}
 
@@ -154,7 +154,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             bar.close()
         run.warnings = notes.counts
         notes.close()
-    for w in [*reader.new_warnings(), truth_missed(truth, [s.stamp for s in run.steps]), window_missed(window, n_frames)]:
+    for w in [*reader.new_warnings(), truth_missed(truth, [s.stamp for s in run.steps])]:
         if w:
             log(f"warning: {w}")
             run.recording_warnings.append(w)
@@ -400,8 +400,6 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
         out.close()
         for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
             print(f"warning: {w}")
-    if not interrupted and (w := window_missed(replay_window(args), stats["published"])):
-        print(f"warning: {w}")
     summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth, out.pose_sigmas), params,
                            interrupted)
     print(f"output: {args.out} ({out.count} messages)")

@@ -131,14 +131,6 @@ class PairScores:
                 **fitted_sigmas(self.normalised, self.sigmas)}
 
 
-def window_missed(window: tuple[float, float] | None, frames: int) -> str | None:
-    """What to say when ``--start``/``--duration`` left no frame to replay (offline and live alike)."""
-    if window is None or frames:
-        return None
-    return (f"no frame in --start/--duration's {window[0]:g} .. {window[1]:g} s: the bag ends before (both count "
-            "seconds after the bag's first frame)")
-
-
 def truth_missed(truth: Trajectory | None, stamps: list[float]) -> str | None:
     """What to say when the ground truth has a pose for none of the frames (stamped on another clock, or of another
     recording), instead of a summary that silently scores nothing."""
