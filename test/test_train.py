@@ -167,8 +167,9 @@ def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
         path.write_text("not a checkpoint")
     elif init == "dict.pt":
         torch.save({"weights": torch.zeros(3)}, path)
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(ValueError, match=match) as err:
         train([seq], [seq], tmp_path / "out", {"init": str(path)}, cache_dir=tmp_path / "cache")
+    assert "weights_only" not in str(err.value)  # torch's advice to load it unsafely (any code in it would run)
     assert not (tmp_path / "out").exists()  # refused before any work
 
 

@@ -98,6 +98,16 @@ def weights_dir() -> Path:
     return Path(__file__).parents[1] / "weights"
 
 
+def _load_failure(e: Exception) -> str:
+    """torch.load's reason, in a line. Its weights-only refusal opens with advice to load the file unsafely
+    (weights_only=False runs any code the file holds): not given here, the cause is."""
+    text = str(e).strip()
+    if "WeightsUnpickler error:" in text:
+        cause = text.split("WeightsUnpickler error:", 1)[1].strip().splitlines()[0]
+        return f"torch.load, loading weights only: {cause}: it holds more than tensors and numbers, or is no PyTorch file"
+    return f"torch.load: {text.splitlines()[0] if text else type(e).__name__}"
+
+
 def load_model(path: str | Path | None = None, variant: str = "nmnet") -> NMNet:
     """Build NM-Net and load weights (default: the shipped ones for ``variant``), eval mode."""
     path = Path(path) if path is not None else weights_dir() / f"{variant}.pt"
@@ -111,9 +121,8 @@ def load_model(path: str | Path | None = None, variant: str = "nmnet") -> NMNet:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - torch raises many types for bad files
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise WeightsError(f"{path}: cannot read weights: not a checkpoint written by `nmnet train` (the shipped "
-                           f"nmnet_ros/weights/nmnet.pt is one), or a damaged one (torch.load: {first})") from e
+                           f"nmnet_ros/weights/nmnet.pt is one), or a damaged one ({_load_failure(e)})") from e
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
         raise WeightsError(f"{path}: not an NM-Net checkpoint (no 'state_dict')")
     model = NMNet(ckpt.get("config"))
