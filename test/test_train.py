@@ -173,6 +173,18 @@ def test_init_that_does_not_fit_is_a_clear_error(tmp_path, init, match):
     assert not (tmp_path / "out").exists()  # refused before any work
 
 
+def test_a_file_among_the_folders_stops_the_run_before_any_features(tmp_path):
+    """`nmnet train --train labelled/*` after a fleet's label run takes its report.json too: it was found out after
+    the features of the folders before it (minutes each), and now before any."""
+    seq = str(data_dir("strecha-fountain-p11"))
+    report = tmp_path / "report.json"
+    report.write_text("{}")
+    with pytest.raises(ValueError, match=f"{report}: not a directory"):
+        train([seq, str(report)], [seq], tmp_path / "out", cache_dir=tmp_path / "cache")
+    assert not [p for p in (tmp_path / "cache").rglob("*") if p.is_file()]  # no feature computed
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_run_stopped_with_ctrl_c_leaves_a_calibrated_best_pt(tmp_path):
     """Ctrl-C is how a long run is ended; its best.pt kept the uncalibrated cut 0.5, which the node and the tools
     then used without a word. Calibrated on the way out now (seconds), and the interrupt goes on to the CLI."""

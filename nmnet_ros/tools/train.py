@@ -74,14 +74,11 @@ def _fill(detector: str, max_keypoints: int, root: Path, folder: str, frames: li
 def prepare_features(specs: list[str], cache: FeatureCache, c: dict, log: Callable[[str], None]) -> None:
     """Compute the features that the folders' pairs need and ``cache`` lacks, one Ray task per folder (a local
     runtime, or $RAY_ADDRESS's cluster with the cache on shared storage), when two or more folders lack
-    :data:`PARALLEL_FRAMES` or more in all; the loaders then read them. A folder that fails here is left to the
-    loader, which says why."""
+    :data:`PARALLEL_FRAMES` or more in all; the loaders then read them. Every folder is read here first: one that
+    is none (a fleet's report.json among ``labelled/*``) or lacks a range's frames stops the run before any work."""
     missing: dict[str, tuple[str, list[int]]] = {}  # spec: (its folder, absolute; the frames it lacks)
     for spec in dict.fromkeys(specs):
-        try:
-            seq, frames = pair_frames(spec, tuple(c["gaps"]), c["max_view_angle"])
-        except ValueError:
-            continue
+        seq, frames = pair_frames(spec, tuple(c["gaps"]), c["max_view_angle"])
         if lacking := [k for k in frames if not cache.path(seq, k).is_file()]:
             missing[spec] = (str(seq.root.resolve()), lacking)
     total = sum(len(frames) for _, frames in missing.values())
