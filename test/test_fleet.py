@@ -409,6 +409,15 @@ def test_eval_interrupted_writes_nothing_and_eval_needs_a_folder(cluster, tmp_pa
     assert r.returncode == 2 and "name a sequence folder, or give --manifest FILE" in r.stderr
 
 
+def test_a_bad_input_fails_its_task_in_the_words_of_the_command_alone():
+    """A bad recording's row said "DatasetError: run/report.json: not a directory": the class name is the code's, not
+    the user's; the message is what `nmnet eval run/report.json` says."""
+    from nmnet_ros.io.datasets import DatasetError
+
+    assert fleet.described(DatasetError("run/report.json: not a directory")) == "run/report.json: not a directory"
+    assert fleet.described(OSError(28, "No space left on device", "out")) == "[Errno 28] No space left on device: 'out'"
+
+
 @pytest.mark.slow
 def test_a_task_that_raises_is_its_own_failure_said_in_one_line(monkeypatch):
     """map_tasks: an exception in one task (here ZeroDivisionError, not a bad-input error) is that task's Failed,

@@ -285,9 +285,11 @@ class Failed:
 
 
 def described(e: Exception) -> str:
-    """A task's exception as its report says it: a bad input (ValueError, OSError) plainly, anything else with the
-    line of code it came from."""
-    return f"{type(e).__name__}: {e}" if isinstance(e, (ValueError, OSError)) else traceback.format_exc(limit=1).strip()
+    """A task's exception as its report says it: a bad input (ValueError, OSError) plainly, as the command run on that
+    input alone says it, anything else with the line of code it came from."""
+    if isinstance(e, (ValueError, OSError)):
+        return str(e) or type(e).__name__
+    return traceback.format_exc(limit=1).strip()
 
 
 def _guarded(fn: Callable, *args: object) -> object:
