@@ -108,6 +108,8 @@ def test_rows_with_padding_and_big_endian_are_read_right():
     ((2, 4, "bayer_rggb16", 8, bytes(10)), "the message is truncated"),
     ((2, 4, "bgr8", 4, bytes(24)), "step 4 is smaller than width*channels*bytes = 12"),
     ((2, 4, "nv21", 3, bytes(24)), "step 3 is smaller than the width 4 of nv21's luma plane"),
+    ((2, 2, "32FC1", 8, bytes(16)), "unsupported image encoding '32FC1' (float pixels: a depth or disparity stream? "
+                                    "remap image to the camera's colour or mono stream); publish one of mono8"),
 ])
 def test_bad_payloads_say_what_is_wrong(fields, needle):
     with pytest.raises(ImageError) as err:

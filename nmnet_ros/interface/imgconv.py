@@ -50,6 +50,7 @@ ENCODINGS: dict[str, tuple[int, np.dtype, int | None]] = {
 # full (4:4:4) resolution; value: chroma rows per luma row and their bytes per luma byte. Only the luma plane is read:
 # it is the grey image the detector works on (what OpenCV's COLOR_YUV2GRAY_NV21 returns).
 SEMI_PLANAR: dict[str, tuple[float, int]] = {"nv12": (0.5, 1), "nv21": (0.5, 1), "nv24": (1.0, 2)}
+FLOAT_ENCODINGS = ("32fc1", "64fc1")  # what depth cameras and stereo matchers publish (metres, disparities)
 
 
 def _bytes(data: Buffer) -> np.ndarray:
@@ -65,7 +66,9 @@ def image_to_array(height: int, width: int, encoding: str, step: int, data: Buff
     """Image message fields -> (H,W) or (H,W,3) array (BGR for colour), zero-copy where possible."""
     enc = encoding.lower()
     if enc not in ENCODINGS and enc not in SEMI_PLANAR:
-        raise ImageError(f"unsupported image encoding {encoding!r}; publish one of "
+        depth = " (float pixels: a depth or disparity stream? remap image to the camera's colour or mono stream)" \
+            if enc in FLOAT_ENCODINGS else ""
+        raise ImageError(f"unsupported image encoding {encoding!r}{depth}; publish one of "
                          f"{', '.join([*ENCODINGS, *SEMI_PLANAR])}")
     if height <= 0 or width <= 0:
         raise ImageError(f"image is {width}x{height}: nothing to process (check the camera driver)")

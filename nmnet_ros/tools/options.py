@@ -234,7 +234,8 @@ def demo(p: argparse.ArgumentParser) -> None:
                    help="folder for the output .mcap, summary and plots")
     p.add_argument("--bag", type=Path, default=SAMPLE_BAG, help="bag to replay (default: the bundled sample)")
     p.add_argument("--rate", type=playback_rate, default=0.3,
-                   help="live playback speed (x recorded 10 Hz); 0.3 lets a 2-core machine keep up at 2000 keypoints")
+                   help="live playback speed (x as recorded; the sample is 10 Hz); 0.3 lets a 2-core machine keep up "
+                   "with the sample at 2000 keypoints")
 
 
 def make_bag(p: argparse.ArgumentParser) -> None:
