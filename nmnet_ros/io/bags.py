@@ -504,7 +504,7 @@ class WindowWatch:
         if side < 0:
             self.before = t_ns
         elif side > 0:
-            self.after = t_ns if self.after is None else self.after
+            self.after = t_ns  # the loops stop here: the first frame after the window
         else:
             self.inside += 1
         return side

@@ -43,8 +43,9 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
     path, chosen = parse_seq_spec(str(source))
     path = Path(path)  # the bag or folder, without a frame range
     bag = path.suffix in BAG_SUFFIXES or (path / "metadata.yaml").is_file()
-    images = not bag and not _sequence_folder(path)
-    for option, value, applies, what in (("--fps", args.fps, images, "stamps a folder of images"),
+    # a folder of loose images: none for a bag or a sequence folder (Sequence.load says what else it may be)
+    files = [] if bag or (path / "images.txt").is_file() or (path / "camera.yaml").is_file() else _images_in(path)
+    for option, value, applies, what in (("--fps", args.fps, bool(files), "stamps a folder of images"),
                                          ("--image-topic", args.image_topic, bag, "names a bag's topic")):
         if value is not None and not applies:  # given for nothing: said, as the user meant something by it
             print(f"warning: {option} {what}; {source} is not one: {option} is ignored", file=sys.stderr)
@@ -66,18 +67,12 @@ def frames_of(source: Path, args: argparse.Namespace) -> tuple[Iterator[tuple[fl
             raise ValueError(f"{source}: no readable frame with a calibration (no camera_info? give --camera)")
         camera = camera or first.get("camera")
         return _chain(head, it), camera
-    if not images:
+    if not files:
         seq = Sequence.load(path)  # its ground truth, if any, is not looked at
         return ((float(seq.stamps[i]), seq.image(i)) for i in seq.frames(chosen)), camera or seq.camera
-    files = _images_in(source)
     if camera is None:
         raise ValueError(f"{source}: a folder of images needs --camera (a camera_info YAML) for its calibration")
     return _folder_frames(files, camera, args.camera, args.fps or DEFAULT_FPS), camera
-
-
-def _sequence_folder(path: Path) -> bool:
-    """A sequence folder (or a download of one, or no folder of images at all: Sequence.load says what it is)."""
-    return (path / "images.txt").is_file() or (path / "camera.yaml").is_file() or not _images_in(path)
 
 
 def _folder_frames(files: list[Path], camera: Camera, calibration: Path, fps: float) -> Iterator[tuple[float, np.ndarray]]:
@@ -256,9 +251,10 @@ def main(args: argparse.Namespace) -> int:
 def label_recording(args: argparse.Namespace) -> int:
     """One recording labelled into ``args.out``."""
     source, out = Path(args.recordings[0]), Path(args.out)
-    output_file(args.json, "--json", "label.json", [Path(parse_seq_spec(str(source))[0])])
+    recording = Path(parse_seq_spec(str(source))[0])  # without a frame range
+    output_file(args.json, "--json", "label.json", [recording])
     ours = (out / "reconstruction.json").is_file() and written_here(out / "reconstruction.json")  # an earlier label run
-    output_folder(out, "--out", "the labelled sequence folder", [Path(parse_seq_spec(str(source))[0]), args.camera],
+    output_folder(out, "--out", "the labelled sequence folder", [recording, args.camera],
                   () if ours else OUTPUTS)
     if out.is_dir() and any(out.iterdir()) and not ours:
         raise ValueError(f"--out {out} holds files nmnet label did not write: give a new or empty folder")
