@@ -208,7 +208,7 @@ def _adaptation_steps() -> tuple[tuple[str, ...], ...]:
     common = ("--epochs", "8", "--augment")
     fine_tune = {"adapted": ("{tmp}/labelled:0-99", "{tmp}/labelled:100-119"),
                  "truth": (f"{DATA}/kitti-07:0-99", f"{DATA}/kitti-07:100-119")}
-    steps = [("label", f"{DATA}/kitti-07:0-119", "{tmp}/labelled", "--json", "{tmp}/label.json"),
+    steps = [("label", f"{DATA}/kitti-07:0-119", "--out", "{tmp}/labelled", "--json", "{tmp}/label.json"),
              ("train", "--train", f"{DATA}/strecha-fountain-p11", f"{DATA}/strecha-entry-p10", "--val",
               f"{DATA}/strecha-herz-jesus-p25", "--out", "{tmp}/before", "--epochs", "20", "--augment")]
     steps += [("train", "--train", train, "--val", val, "--out", "{tmp}/" + run, "--init", "{tmp}/before/best.pt", *common)
@@ -228,6 +228,12 @@ def _adaptation_result(tmp: Path, _steps: list[dict]) -> dict:
     return {"runs": runs, "label": {k: label[k] for k in ("keyframes", "registered", "mean_reprojection_px")}}
 
 
+def _step_name(command: str) -> str:
+    """A step of a stored run by its tool, and for ``train`` its output: "label", "train OUT/before"."""
+    words = command.split()
+    return f"{words[1]} {words[words.index('--out') + 1]}" if words[1] == "train" else words[1]
+
+
 def render_adaptation(r: dict) -> str:
     """Adaptation: NM-Net's F and the pipelines' AUC@5 on the held-out frames, and what each step cost."""
     rows = ["| weights | NM-Net F | AUC@5: " + " | ".join(method_label(m) for m in ADAPT_POSE) + " |",
@@ -236,8 +242,7 @@ def render_adaptation(r: dict) -> str:
         m = r["runs"][run]["methods"]
         rows.append(f"| {name} | {m['nmnet']['f1']:.1f} | " + " | ".join(f"{m[k]['auc5']:.1f}" for k in ADAPT_POSE) + " |")
     pairs = r["runs"]["before"]["methods"]["nmnet"]["pairs"]
-    cost = {s["command"].split()[1] + (" " + s["command"].split("--out ")[1].split()[0] if "--out" in s["command"] else ""): s
-            for s in r["steps"]}
+    cost = {_step_name(s["command"]): s for s in r["steps"]}
     rows += ["", "| step | minutes | peak memory |", "|---|---|---|"]
     for step, what in (("label", f"`nmnet label`, {r['label']['keyframes']} KITTI frames"),
                        ("train OUT/before", "train from scratch on Strecha (20 epochs)"),
@@ -309,7 +314,7 @@ EXPERIMENTS: dict[str, Experiment] = {
          "{tmp}"), None, needs_data=True),
     "labels": Experiment(
         "nmnet label on KITTI-07 frames 0-119 with the ground truth withheld, checked against it afterwards",
-        ("label", f"{DATA}/kitti-07:0-119", "{tmp}/labelled", "--truth", f"{DATA}/kitti-07", "--json", "{out}"),
+        ("label", f"{DATA}/kitti-07:0-119", "--out", "{tmp}/labelled", "--truth", f"{DATA}/kitti-07", "--json", "{out}"),
         render_labels, needs_data=True),
     "adaptation": Experiment(
         "weights that never saw KITTI, adapted to KITTI-07 with nmnet label's labels, beside the same fine-tune on "
