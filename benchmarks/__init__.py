@@ -313,7 +313,7 @@ EXPERIMENTS: dict[str, Experiment] = {
          "--fallback-min-inliers", "0", "--seeds", "3", "--nmnet-precision", "float32", "--json", "{out}", "--plots",
          "{tmp}"), None, needs_data=True),
     "labels": Experiment(
-        "nmnet label on KITTI-07 frames 0-119 with the ground truth withheld, checked against it afterwards",
+        "`nmnet label` on KITTI-07 frames 0-119 with the ground truth withheld, checked against it afterwards",
         ("label", f"{DATA}/kitti-07:0-119", "--out", "{tmp}/labelled", "--truth", f"{DATA}/kitti-07", "--json", "{out}"),
         render_labels, needs_data=True),
     "adaptation": Experiment(
