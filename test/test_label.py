@@ -15,7 +15,7 @@ import pytest
 from nmnet_ros.core.geometry import Camera
 from nmnet_ros.io.datasets import Sequence, write_camera_yaml
 from nmnet_ros.io.outputs import written_here
-from nmnet_ros.tools.label import frames_of, pick_keyframes
+from nmnet_ros.tools.label import frames_of, pick_keyframes, truth_check
 from nmnet_ros.tools.make_bag import make_bag
 from nmnet_ros.tools.options import SAMPLE_BAG
 
@@ -180,6 +180,28 @@ def test_a_range_or_a_truth_that_does_not_fit_the_recording_is_refused_before_th
     r = nmnet("label", str(bag), str(tmp_path / "c"), "--min-flow", "300")  # it named only --interval
     assert r.returncode == 2 and "give a longer recording or a shorter --interval or a lower --min-flow" in r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]
+
+
+def test_a_truth_without_poses_at_the_keyframes_is_said_before_any_check(tmp_path):
+    """A --truth whose poses stop before the labelled frames (a tracker that lost the camera) has the keyframes'
+    stamps but no pose there: nothing to check, said naming it (its message had never run)."""
+    kitti = data_dir("kitti-07")
+    images = [line.split() for line in (kitti / "images.txt").read_text().splitlines() if not line.startswith("#")]
+    poses = [line for line in (kitti / "groundtruth.txt").read_text().splitlines() if not line.startswith("#")]
+
+    def folder(name: str, frames: range, posed: range) -> Sequence:
+        root = tmp_path / name
+        root.mkdir()
+        shutil.copy(kitti / "camera.yaml", root)
+        (root / "images.txt").write_text("".join(f"{images[i][0]} {kitti / images[i][1]}\n" for i in frames))
+        (root / "groundtruth.txt").write_text("".join(poses[i] + "\n" for i in posed))
+        return Sequence.load(root)
+
+    truth = folder("truth", range(10), range(2))  # poses for frames 0-1 only
+    folder("labelled", range(4, 7), range(4, 7))
+    with pytest.raises(ValueError, match="--truth T: it has no pose at any two consecutive keyframes the "
+                                         "reconstruction posed: nothing to check the labels against"):
+        truth_check(tmp_path / "labelled", truth, "T")
 
 
 @pytest.mark.slow

@@ -213,8 +213,8 @@ def truth_check(out: Path, truth: Sequence, truth_spec: str) -> dict:
         same += int((mine == p.labels).sum())
         total += len(p.labels)
     if not rot:
-        raise ValueError(f"--truth {truth_spec}: no two consecutive keyframes both posed by the reconstruction and "
-                         "by it: nothing to check")
+        raise ValueError(f"--truth {truth_spec}: it has no pose at any two consecutive keyframes the reconstruction "
+                         "posed: nothing to check the labels against; give ground truth that covers the labelled frames")
     return {"pairs": len(rot), "median_rot_deg": float(np.median(rot)), "median_trans_deg": float(np.median(direction)),
             "label_agreement_percent": 100 * same / max(total, 1), "matches": total}
 
