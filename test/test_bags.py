@@ -17,18 +17,8 @@ import numpy as np
 import pytest
 import yaml
 
-from nmnet_ros.io.bags import (
-    BagError,
-    BagReader,
-    bag_ground_truth,
-    choose_topics,
-    image_frame,
-    pick_ground_truth,
-    pose_from_msg,
-    read_frames,
-    tf_ground_truth,
-    typestore,
-)
+from nmnet_ros.io.bag_truth import bag_ground_truth, pick_ground_truth, pose_from_msg, tf_ground_truth
+from nmnet_ros.io.bags import BagError, BagReader, choose_topics, image_frame, read_frames, typestore
 from nmnet_ros.tools.make_bag import make_bag
 from nmnet_ros.tools.options import SAMPLE_BAG
 
@@ -1574,7 +1564,7 @@ def test_an_rgbd_cameras_depth_images_are_not_taken_for_its_frames(tmp_path):
 def test_a_pose_topic_is_ground_truth_by_itself_only_when_its_name_says_so():
     """Motion-capture and simulator names are taken; a robot's other poses are not; two named ones ask for a choice,
     listing the whole bag."""
-    from nmnet_ros.io.bags import looks_like_ground_truth, pick_ground_truth
+    from nmnet_ros.io.bag_truth import looks_like_ground_truth
 
     for topic in ("/ground_truth/pose", "/groundtruth", "/gt", "/robot/gt/odom", "/vicon/drone/drone", "/mocap/rb1/pose",
                   "/vrpn_mocap/robot/pose", "/optitrack/robot", "/leica/position"):

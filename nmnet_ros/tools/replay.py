@@ -27,7 +27,8 @@ from ..interface.framecheck import FrameChecks
 from ..interface.imgconv import MAX_PIXELS
 from ..interface.params import PARAMS, SELECTORS, frontend_config, pose_sigmas, read_params_file
 from ..interface.posemsg import SIGMAS
-from ..io.bags import BagError, BagReader, Frame, bag_ground_truth, choose_topics, image_frame, read_frames, tf_ground_truth
+from ..io.bag_truth import bag_ground_truth, tf_ground_truth
+from ..io.bags import BagError, BagReader, Frame, choose_topics, image_frame, read_frames
 from ..io.datasets import read_camera_yaml
 from ..io.mcap_out import McapOutput
 from ..io.outputs import not_a_folder, not_an_input, not_someone_elses, output_file, output_folder, write_json
