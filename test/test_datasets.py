@@ -166,6 +166,25 @@ def test_ground_truth_with_other_stamps_than_the_images_gives_each_image_its_nea
     np.testing.assert_array_equal(Sequence.load(dst).poses, Sequence.load(src).poses)
 
 
+def test_frames_left_out_of_ground_truth_at_the_frames_stamps_have_no_pose_however_the_rest_are_spaced(tmp_path):
+    """Ground truth at the images' own stamps (nmnet label's: a pose per registered keyframe) that leaves frames out:
+    they have no pose. Keyframes chosen by image motion are spaced unevenly, and a frame left out between two close
+    ones got a pose interpolated between them (as ground truth at its own rate is), which the reconstruction never
+    gave it."""
+    src = data_dir("kitti-07")
+    dst = tmp_path / "labelled"
+    dst.mkdir()
+    shutil.copy(src / "camera.yaml", dst)
+    images = [r.split() for r in (src / "images.txt").read_text().splitlines() if not r.startswith("#")][:31]
+    (dst / "images.txt").write_text("".join(f"{stamp} {src / name}\n" for stamp, name in images))
+    rows = [r for r in (src / "groundtruth.txt").read_text().splitlines() if not r.startswith("#")]
+    posed = [0, 1, 2, 3, 5, 10, 15, 20, 25, 30]  # spaced 1 to 5 frames apart: frame 4 between two 1 apart
+    (dst / "groundtruth.txt").write_text("".join(rows[i] + "\n" for i in posed))
+    seq, kitti = Sequence.load(dst), Sequence.load(src)
+    assert [i for i in range(31) if seq.has_pose(i)] == posed
+    assert np.array_equal(seq.poses[posed], kitti.poses[posed])
+
+
 def test_ground_truth_at_its_own_rate_is_interpolated_to_the_frames_stamps():
     """A 100 Hz motion-capture stream turning at 30 deg/s, frames 4.2 ms after its poses: each frame's pose is the
     true one (the nearest pose would be 0.126 deg off, four times the front end's median error on KITTI). A pose at

@@ -136,10 +136,19 @@ def _kalibr_camera(d: dict) -> Camera:
 
 
 def _poses_at(gt: Trajectory, stamps: np.ndarray, source: Path, listing: Path) -> np.ndarray:
-    """Each image's pose by its stamp (:meth:`Trajectory.poses_at`), NaN where the ground truth has none: a file that
-    does not cover every image (a tracker that lost the camera) leaves those frames out, instead of giving them
-    a pose of another time. ``source`` and ``listing`` are the files of the poses and of the images' stamps."""
-    poses = gt.poses_at(stamps)
+    """Each image's pose by its stamp, NaN where the ground truth has none: a file that does not cover every image
+    (a tracker that lost the camera, a keyframe ``nmnet label``'s reconstruction could not register) leaves those
+    frames out, instead of giving them a pose of another time. Ground truth at the images' own stamps (the format's:
+    a pose per frame) is taken at those stamps only; at its own rate and stamps (motion capture) it is interpolated
+    between its poses (:meth:`Trajectory.poses_at`). ``source`` and ``listing`` are the files of the poses and of the
+    images' stamps."""
+    i, near = gt.lookup(stamps)
+    at_stamp = near & (np.abs(gt.stamps[i] - stamps) < 1e-6)  # a pose at the image's stamp itself
+    if len(np.unique(i[at_stamp])) == len(gt.stamps):  # every pose is at an image's stamp: none is between frames
+        poses = np.full((len(stamps), 4, 4), np.nan)
+        poses[at_stamp] = gt.poses[i[at_stamp]]
+    else:
+        poses = gt.poses_at(stamps)
     if np.isnan(poses[:, 0, 0]).all():
         raise DatasetError(f"{source}: no pose at any image's stamp (stamps {gt.stamps[0]:.6f} .. "
                            f"{gt.stamps[-1]:.6f}, images {stamps.min():.6f} .. {stamps.max():.6f}); its timestamps must be "
