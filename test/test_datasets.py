@@ -183,6 +183,7 @@ def test_frames_left_out_of_ground_truth_at_the_frames_stamps_have_no_pose_howev
     seq, kitti = Sequence.load(dst), Sequence.load(src)
     assert [i for i in range(31) if seq.has_pose(i)] == posed
     assert np.array_equal(seq.poses[posed], kitti.poses[posed])
+    assert "21 of 31 frames have no pose (no line at their stamps; frames 4, 6, 7, 8, 9, ...)" in seq.uncovered_note()
 
 
 def test_ground_truth_at_its_own_rate_is_interpolated_to_the_frames_stamps():

@@ -135,16 +135,17 @@ def _kalibr_camera(d: dict) -> Camera:
                   KALIBR_DISTORTION[name])
 
 
-def _poses_at(gt: Trajectory, stamps: np.ndarray, source: Path, listing: Path) -> np.ndarray:
+def _poses_at(gt: Trajectory, stamps: np.ndarray, source: Path, listing: Path) -> tuple[np.ndarray, bool]:
     """Each image's pose by its stamp, NaN where the ground truth has none: a file that does not cover every image
     (a tracker that lost the camera, a keyframe ``nmnet label``'s reconstruction could not register) leaves those
     frames out, instead of giving them a pose of another time. Ground truth at the images' own stamps (the format's:
     a pose per frame) is taken at those stamps only; at its own rate and stamps (motion capture) it is interpolated
     between its poses (:meth:`Trajectory.poses_at`). ``source`` and ``listing`` are the files of the poses and of the
-    images' stamps."""
+    images' stamps. Also returns whether the poses were taken at the images' stamps only."""
     i, near = gt.lookup(stamps)
     at_stamp = near & (np.abs(gt.stamps[i] - stamps) < 1e-6)  # a pose at the image's stamp itself
-    if len(np.unique(i[at_stamp])) == len(gt.stamps):  # every pose is at an image's stamp: none is between frames
+    at_frames = len(np.unique(i[at_stamp])) == len(gt.stamps)  # every pose is at an image's stamp: none between
+    if at_frames:
         poses = np.full((len(stamps), 4, 4), np.nan)
         poses[at_stamp] = gt.poses[i[at_stamp]]
     else:
@@ -153,7 +154,7 @@ def _poses_at(gt: Trajectory, stamps: np.ndarray, source: Path, listing: Path) -
         raise DatasetError(f"{source}: no pose at any image's stamp (stamps {gt.stamps[0]:.6f} .. "
                            f"{gt.stamps[-1]:.6f}, images {stamps.min():.6f} .. {stamps.max():.6f}); its timestamps must be "
                            f"those of {listing.name}")
-    return poses
+    return poses, at_frames
 
 
 FOLDERS_READ = ("camera.yaml + images.txt + groundtruth.txt, a EuRoC (ASL) or KITTI odometry download, or a TUM RGB-D "
@@ -214,6 +215,7 @@ class Sequence:
     truth_file: Path  # groundtruth.txt (EuRoC's: the body's data.csv; KITTI's: poses/NN.txt), named in messages
     size_note: str | None = None  # camera.yaml's K scaled to the images (a resized copy of a dataset)
     camera_note: str | None = None  # where the calibration came from when the folder has none (TUM RGB-D's)
+    truth_at_frames: bool = False  # the ground truth is a pose per image's stamp (not at a rate of its own)
 
     @classmethod
     def load(cls, root: str | Path) -> Sequence:
@@ -241,9 +243,9 @@ class Sequence:
         check_seconds(listing, stamps, "frames")
         check_ros_time(listing, stamps)
         paths = [path for _, path in rows]
-        poses = None
+        poses, at_frames = None, False
         if (root / "groundtruth.txt").is_file():
-            poses = _poses_at(read_tum(root / "groundtruth.txt"), stamps, root / "groundtruth.txt", listing)
+            poses, at_frames = _poses_at(read_tum(root / "groundtruth.txt"), stamps, root / "groundtruth.txt", listing)
         pairs = None
         if (root / "pairs.txt").is_file():
             pairs = read_table(root / "pairs.txt", "i j", lambda r: (int(r[0]), int(r[1])))
@@ -251,7 +253,7 @@ class Sequence:
             if bad:
                 raise DatasetError(f"{root / 'pairs.txt'}: pair indices out of range: {bad[:3]}")
         seq = cls(root, camera, stamps, paths, poses, pairs, root / "camera.yaml", root / "groundtruth.txt",
-                  camera_note=camera_note)
+                  camera_note=camera_note, truth_at_frames=at_frames)
         seq._fit_camera()
         return seq
 
@@ -279,8 +281,8 @@ class Sequence:
                    files: tuple[Path, Path, Path]) -> Sequence:
         """A sequence read from another dataset's layout; ``files``: its calibration, ground-truth and frame list."""
         calibration, truth_file, listing = files
-        poses = None if truth is None else _poses_at(truth, stamps, truth_file, listing)
-        seq = cls(root, camera, stamps, paths, poses, None, calibration, truth_file)
+        poses, at_frames = (None, False) if truth is None else _poses_at(truth, stamps, truth_file, listing)
+        seq = cls(root, camera, stamps, paths, poses, None, calibration, truth_file, truth_at_frames=at_frames)
         seq._fit_camera()
         return seq
 
@@ -351,9 +353,9 @@ class Sequence:
         if not len(missing):
             return None
         listed = ", ".join(map(str, missing[:5])) + (", ..." if len(missing) > 5 else "")
-        return (f"{self.truth_file}: {len(missing)} of {len(self)} frames have no pose (none between two "
-                f"of the file's poses nor within half its spacing of one; frames {listed}); "
-                f"{consequence}")
+        why = "no line at their stamps" if self.truth_at_frames else \
+            "none between two of the file's poses nor within half its spacing of one"
+        return f"{self.truth_file}: {len(missing)} of {len(self)} frames have no pose ({why}; frames {listed}); {consequence}"
 
     def relative_pose(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """(R, t) of frame i in frame j: x_j = R x_i + t."""
