@@ -142,14 +142,12 @@ def _poses_at(gt: Trajectory, stamps: np.ndarray, source: Path, listing: Path) -
     a pose per frame) is taken at those stamps only; at its own rate and stamps (motion capture) it is interpolated
     between its poses (:meth:`Trajectory.poses_at`). ``source`` and ``listing`` are the files of the poses and of the
     images' stamps. Also returns whether the poses were taken at the images' stamps only."""
+    poses = gt.poses_at(stamps)
     i, near = gt.lookup(stamps)
     at_stamp = near & (np.abs(gt.stamps[i] - stamps) < 1e-6)  # a pose at the image's stamp itself
     at_frames = len(np.unique(i[at_stamp])) == len(gt.stamps)  # every pose is at an image's stamp: none between
     if at_frames:
-        poses = np.full((len(stamps), 4, 4), np.nan)
-        poses[at_stamp] = gt.poses[i[at_stamp]]
-    else:
-        poses = gt.poses_at(stamps)
+        poses[~at_stamp] = np.nan  # not interpolated between two frames' poses
     if np.isnan(poses[:, 0, 0]).all():
         raise DatasetError(f"{source}: no pose at any image's stamp (stamps {gt.stamps[0]:.6f} .. "
                            f"{gt.stamps[-1]:.6f}, images {stamps.min():.6f} .. {stamps.max():.6f}); its timestamps must be "
