@@ -274,6 +274,22 @@ def test_a_folder_of_ros1_bag_parts_replays_as_one_recording(tmp_path):
     assert r.returncode == 0 and s["processed"] == 9 and s["scored_pairs"] == 8, (r.stderr, s)
 
 
+def test_a_replay_scores_no_frame_its_ground_truth_left_out(tmp_path):
+    """A bag made from a folder whose ground truth is a pose per frame with frames left out (``nmnet label``'s
+    unregistered keyframes): the replay scores only the pairs of frames with a pose of their own, as eval does for
+    the folder; it gave every frame between two close poses one interpolated between them (30 pairs here)."""
+    src, folder = data_dir("kitti-07"), tmp_path / "labelled"
+    folder.mkdir()
+    shutil.copy(src / "camera.yaml", folder)
+    images = [r.split() for r in (src / "images.txt").read_text().splitlines() if not r.startswith("#")][:31]
+    (folder / "images.txt").write_text("".join(f"{stamp} {src / name}\n" for stamp, name in images))
+    rows = [r for r in (src / "groundtruth.txt").read_text().splitlines() if not r.startswith("#")]
+    (folder / "groundtruth.txt").write_text("".join(rows[i] + "\n" for i in (0, 1, 2, 3, 5, 10, 15, 20, 25, 30)))
+    assert make_bag(folder, tmp_path / "b.mcap", "mcap", compressed=False) == 31
+    r, s = replay_json(tmp_path / "b.mcap", tmp_path, "--detector", "sift", "--selector", "ratio+magsac")
+    assert r.returncode == 0 and s["processed"] == 31 and s["scored_pairs"] == 3, (r.stderr, s)
+
+
 @pytest.mark.parametrize("fmt, out, sig", [("mcap", "bag", signal.SIGINT), ("ros1", "bag.bag", signal.SIGTERM),
                                            ("mcap", "bag.mcap", signal.SIGTERM)],
                          ids=["mcap-SIGINT", "ros1-SIGTERM", "mcap-file-SIGTERM"])

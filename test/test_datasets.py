@@ -186,6 +186,34 @@ def test_frames_left_out_of_ground_truth_at_the_frames_stamps_have_no_pose_howev
     assert "21 of 31 frames have no pose (no line at their stamps; frames 4, 6, 7, 8, 9, ...)" in seq.uncovered_note()
 
 
+def test_frames_read_one_at_a_time_get_the_poses_a_folder_gives_them():
+    """A replay looks ground truth up frame by frame as it reads them (:class:`FrameTruth`): a pose per frame with
+    frames left out gives those frames none, as a folder's do (it interpolated between unevenly spaced neighbours);
+    ground truth at its own rate is interpolated as before. Poses outside the frames' span (a replay of part of a
+    bag) do not count; a frame before any pose has been passed is looked up as :meth:`Trajectory.poses_at` does."""
+    from nmnet_ros.io.trajectory import FrameTruth, Trajectory
+
+    frames = np.round(np.arange(31) * 0.1 + 100.0, 6)
+    T = np.tile(np.eye(4), (31, 1, 1))
+    T[:, 0, 3] = np.arange(31)
+    posed = [0, 1, 2, 3, 5, 10, 15, 20, 25, 30]
+    per_frame = Trajectory(frames[posed], T[posed])
+    assert not np.isnan(per_frame.poses_at(frames)).any()  # every frame interpolated: what a replay scored against
+    for truth, window, expect in [(per_frame, slice(None), posed),
+                                  (per_frame, slice(5, None), [5, 10, 15, 20, 25, 30]),  # poses before it: not frames'
+                                  (Trajectory(frames[posed] + 0.013, T[posed]), slice(None), list(range(31)))]:
+        stamps = frames[window]
+        poses, is_per_frame = truth.at_frames(stamps)
+        look = FrameTruth(truth)
+        one_at_a_time = [look.at(t) for t in stamps]
+        got = [n for n, p in zip(range(31)[window], one_at_a_time, strict=True) if p is not None]
+        assert got == expect and is_per_frame == (truth is per_frame) == look.per_frame
+        assert [n for n, p in zip(range(31)[window], poses, strict=True) if not np.isnan(p).any()] == expect
+        for p, q in zip(poses, one_at_a_time, strict=True):
+            assert q is None or np.array_equal(p, q)
+    assert np.allclose(Trajectory(frames[posed] + 0.013, T[posed]).at_frames(frames[4:5])[0][0, 0, 3], 3.87)
+
+
 def test_ground_truth_at_its_own_rate_is_interpolated_to_the_frames_stamps():
     """A 100 Hz motion-capture stream turning at 30 deg/s, frames 4.2 ms after its poses: each frame's pose is the
     true one (the nearest pose would be 0.126 deg off, four times the front end's median error on KITTI). A pose at

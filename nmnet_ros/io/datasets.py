@@ -136,18 +136,10 @@ def _kalibr_camera(d: dict) -> Camera:
 
 
 def _poses_at(gt: Trajectory, stamps: np.ndarray, source: Path, listing: Path) -> tuple[np.ndarray, bool]:
-    """Each image's pose by its stamp, NaN where the ground truth has none: a file that does not cover every image
-    (a tracker that lost the camera, a keyframe ``nmnet label``'s reconstruction could not register) leaves those
-    frames out, instead of giving them a pose of another time. Ground truth at the images' own stamps (the format's:
-    a pose per frame) is taken at those stamps only; at its own rate and stamps (motion capture) it is interpolated
-    between its poses (:meth:`Trajectory.poses_at`). ``source`` and ``listing`` are the files of the poses and of the
-    images' stamps. Also returns whether the poses were taken at the images' stamps only."""
-    poses = gt.poses_at(stamps)
-    i, near = gt.lookup(stamps)
-    at_stamp = near & (np.abs(gt.stamps[i] - stamps) < 1e-6)  # a pose at the image's stamp itself
-    at_frames = len(np.unique(i[at_stamp])) == len(gt.stamps)  # every pose is at an image's stamp: none between
-    if at_frames:
-        poses[~at_stamp] = np.nan  # not interpolated between two frames' poses
+    """Each image's pose by its stamp, NaN where the ground truth has none (:meth:`Trajectory.at_frames`: a pose per
+    frame is taken at the images' stamps only, ground truth at its own rate is interpolated), and whether it is a pose
+    per frame. ``source`` and ``listing`` are the files of the poses and of the images' stamps."""
+    poses, at_frames = gt.at_frames(stamps)
     if np.isnan(poses[:, 0, 0]).all():
         raise DatasetError(f"{source}: no pose at any image's stamp (stamps {gt.stamps[0]:.6f} .. "
                            f"{gt.stamps[-1]:.6f}, images {stamps.min():.6f} .. {stamps.max():.6f}); its timestamps must be "

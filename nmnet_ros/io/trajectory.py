@@ -160,6 +160,16 @@ def parse_pose(text: str) -> np.ndarray:
     return poses_from_xyzq(np.array([v], np.float64))[0]
 
 
+STAMP_TOLERANCE_S = 1e-6  # a pose "at" a frame's stamp: the same time, as seconds from the same nanoseconds
+
+
+def _nearest_gap(sorted_stamps: np.ndarray, stamps: np.ndarray) -> np.ndarray:
+    """Per stamp, the time to the nearest of ``sorted_stamps`` (ascending, not empty)."""
+    after = np.searchsorted(sorted_stamps, stamps).clip(0, len(sorted_stamps) - 1)
+    before = (after - 1).clip(0)
+    return np.minimum(np.abs(sorted_stamps[after] - stamps), np.abs(sorted_stamps[before] - stamps))
+
+
 @dataclass
 class Trajectory:
     """Ground-truth poses in time order, looked up by stamp (sorted and spaced once, not per frame)."""
@@ -220,10 +230,55 @@ class Trajectory:
         from a tracked body's and the camera's place on it."""
         return Trajectory(self.stamps, self.poses @ T)
 
+    def at_frames(self, stamps: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The pose at each frame's stamp (N,4,4; NaN where none) and whether the ground truth is a pose per frame: every
+        pose within the frames' time span at one of their stamps (the sequence-folder format's). Such ground truth is
+        taken at the frames' stamps only: a frame without a line of its own (a keyframe ``nmnet label``'s
+        reconstruction could not register, a tracker that lost the camera) has no pose, rather than one interpolated
+        between unevenly spaced neighbours. Ground truth at its own rate is :meth:`poses_at`. :class:`FrameTruth` is
+        the same rule for frames read one at a time."""
+        s = np.asarray(stamps, np.float64)
+        poses = self.poses_at(s)
+        frames = np.sort(s)
+        inside = self.stamps[(self.stamps >= frames[0] - STAMP_TOLERANCE_S) & (self.stamps <= frames[-1] + STAMP_TOLERANCE_S)]
+        per_frame = inside.size > 0 and bool(np.all(_nearest_gap(frames, inside) <= STAMP_TOLERANCE_S))
+        if per_frame:
+            poses[_nearest_gap(self.stamps, s) > STAMP_TOLERANCE_S] = np.nan
+        return poses, per_frame
+
     def at(self, stamp: float) -> np.ndarray | None:
         """The pose at ``stamp`` (4x4 T_WC, :meth:`poses_at`), or None where there is none."""
         T = self.poses_at(stamp)[0]
         return None if np.isnan(T[0, 0]) else T
+
+
+class FrameTruth:
+    """Ground truth looked up frame by frame, in the order a pass reads the frames (a bag's replay, a folder's images
+    in time order).
+
+    While every pose since the first frame is at a frame's stamp (ground truth a pose per frame: the sequence-folder
+    format's, and what ``nmnet make-bag`` records), a frame without a pose of its own has none: a keyframe ``nmnet
+    label``'s reconstruction could not register is left out, not given a pose interpolated between unevenly spaced
+    neighbours. Once a pose lies between two frames (ground truth at its own rate: motion capture) every frame is
+    looked up with :meth:`Trajectory.poses_at`; so is a frame before any pose has been passed.
+    """
+
+    def __init__(self, truth: Trajectory) -> None:
+        self.truth = truth
+        self.per_frame: bool | None = None  # None until a pose since the first frame has been passed
+        self._next: int | None = None  # the first pose not yet passed (poses before the first frame are not the frames')
+
+    def at(self, stamp: float) -> np.ndarray | None:
+        """The pose at the frame's ``stamp`` (4x4 T_WC), or None where there is none."""
+        s = self.truth.stamps
+        if self._next is None:
+            self._next = int(np.searchsorted(s, stamp - STAMP_TOLERANCE_S))
+        end = int(np.searchsorted(s, stamp + STAMP_TOLERANCE_S, side="right"))
+        own = end > 0 and abs(s[end - 1] - stamp) <= STAMP_TOLERANCE_S  # a pose at this frame's stamp
+        if end > self._next:  # poses passed since the frame before: all this frame's, or one lies between frames
+            self.per_frame = self.per_frame is not False and bool(np.all(stamp - s[self._next:end] <= STAMP_TOLERANCE_S))
+            self._next = end
+        return None if self.per_frame and not own else self.truth.at(stamp)
 
 
 def between(T0: np.ndarray, T1: np.ndarray, w: float) -> np.ndarray:

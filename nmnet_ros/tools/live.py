@@ -29,7 +29,7 @@ from ..interface.params import NODE_NAME
 from ..interface.posemsg import SIGMAS, estimate_of_message
 from ..io.bags import BagError, BagReader, WindowWatch, choose_topics, typestore
 from ..io.mcap_out import McapOutput
-from ..io.trajectory import Trajectory
+from ..io.trajectory import FrameTruth, Trajectory
 from .scoring import PairScores, truth_missed
 
 # the ROS packages the live mode runs on: the player's (this module) and the node's (node.py, its own process);
@@ -323,6 +323,7 @@ def recording_summary(path: Path, truth: Trajectory | None, sigmas: tuple[float,
     scores, tracks = PairScores(sigmas), TrackLengths()  # scored and counted as they come: a long recording is not held
     first = last = None  # the pose messages' first and last stamps
     T_prev, any_truth = None, False
+    look = None if truth is None else FrameTruth(truth)  # the frames with a pose message, in the order recorded
     for m in BagReader(path).messages({pose_topic, matches_topic}):
         if m.topic == matches_topic:
             tracks.add(matches_of_cloud(m.msg.point_step, m.msg.fields, m.msg.data)["track_id"])
@@ -330,8 +331,7 @@ def recording_summary(path: Path, truth: Trajectory | None, sigmas: tuple[float,
         last = m.log_time_ns / 1e9
         if truth is None:
             continue
-        T = truth.poses_at(last)[0]
-        T = None if np.isnan(T[0, 0]) else T
+        T = look.at(last)
         if first is not None:  # the first message relates to no frame here
             o, p = m.msg.pose.pose.orientation, m.msg.pose.pose.position
             cov = np.reshape(m.msg.pose.covariance, (6, 6))

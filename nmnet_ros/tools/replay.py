@@ -32,7 +32,7 @@ from ..io.bags import BagError, BagReader, Frame, choose_topics, image_frame, re
 from ..io.datasets import read_camera_yaml
 from ..io.mcap_out import McapOutput
 from ..io.outputs import not_a_folder, not_an_input, not_someone_elses, output_file, output_folder, write_json
-from ..io.trajectory import Trajectory, read_tum
+from ..io.trajectory import FrameTruth, Trajectory, read_tum
 from . import fleet
 from .report import PLOTS, print_scores, print_summary, print_tracks, write_plots
 from .scoring import Run, truth_missed
@@ -112,7 +112,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
 
     ``reader``: the bag, opened once (opening lists its topics) and read again for each pass.
 
-    ``truth``: the ground truth the frames are scored against (:func:`ground_truth`), by stamp; ``camera``: the
+    ``truth``: the ground truth the frames are scored against (:func:`ground_truth`), by stamp (:class:`FrameTruth`); ``camera``: the
     calibration to use instead of the bag's camera_info; ``rectified``: its images are rectified; ``recorded``: the
     frames are stamped with the time the bag recorded them (``--stamp-source arrival``); ``window``: the part of the
     bag to replay (``--start``, ``--duration``: seconds after its first frame); ``max_pixels``: the node's
@@ -124,6 +124,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
     notes = Notes(log)
     gate = _Gate(notes, camera, fe.config["time_jump_s"])
     n_frames, overlay = 0, None
+    look = None if truth is None else FrameTruth(truth)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -136,13 +137,14 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             n_frames += 1
             if bar is not None:
                 bar.update(1)
+            T = None if look is None else look.at(f.stamp)  # every frame read: the lookup follows them in order
             if (cam := gate.camera_for(f)) is None:
                 continue
             fe.camera = cam
             r = fe.process(f.image, f.stamp)
             if r.plane_ambiguous:
                 notes("plane_ambiguous", f"frame at {f.stamp:.3f}: {PLANE_NOTE} (as the node does)")
-            run.add(r, None if truth is None else truth.at(f.stamp))
+            run.add(r, T)
             want_overlay = overlay is None and r.status == "ok"
             dbg = draw_matches(f.image, r.k0, r.k1, r.mask) if debug_images or want_overlay else None
             if want_overlay:
@@ -192,7 +194,7 @@ def replay_window(args: argparse.Namespace) -> tuple[float, float] | None:
 
 def ground_truth(reader: BagReader, args: argparse.Namespace, image_topic: str) -> Trajectory | None:
     """What the replay scores against: the ``--gt`` TUM file, else ``--gt-tf``'s transforms on /tf, else the bag's
-    ground-truth topic (each looked up by stamp: :meth:`Trajectory.poses_at`), else nothing; moved to the camera by
+    ground-truth topic (each frame looked up by stamp: :class:`FrameTruth`), else nothing; moved to the camera by
     ``--gt-camera`` when it tracks a body. A file or transform that is not there stops the replay, naming it.
     ``image_topic``: the frames', whose frame_id ``--gt-tf`` is checked against."""
     if args.gt is not None:
