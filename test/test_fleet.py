@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from nmnet_ros.tools import fleet
@@ -239,18 +240,19 @@ def test_the_report_totals_the_finished_recordings_and_names_the_failed(tmp_path
     a bar at 0, which reads as an AUC@5 of 0 or a perfect sigma); the failed are named in red."""
     from nmnet_ros.tools.replay import FLEET
 
-    rows = [{"name": "a", "status": "ok", "frames": 40, "processed": 40, "dropped": 0, "auc5": 80.0, "fps": 4.0,
-             "fitted_pose_sigma_rotation_deg": 0.05, "fitted_pose_sigma_direction": 0.02},
-            {"name": "b", "status": "ok", "frames": 20, "processed": 18, "dropped": 2, "auc5": None, "fps": 6.0,
-             "fitted_pose_sigma_rotation_deg": None, "fitted_pose_sigma_direction": None},
+    rows = [{"name": "a", "status": "ok", "frames": 40, "processed": 40, "dropped": 0, "scored_pairs": 39,
+             "auc5": 80.0, "fps": 4.0, "fitted_pose_sigma_rotation_deg": 0.05, "fitted_pose_sigma_direction": 0.02},
+            {"name": "b", "status": "ok", "frames": 20, "processed": 18, "dropped": 2, "scored_pairs": 0,
+             "auc5": None, "fps": 6.0, "fitted_pose_sigma_rotation_deg": None, "fitted_pose_sigma_direction": None},
             {"name": "c", "status": "failed", "error": "BagError: unreadable"},
             {"name": "d", "status": "interrupted"}]
     t = fleet.totals(FLEET, rows)
     assert t == {"recordings": 4, "ok": 2, "failed": 1, "interrupted": 1, "frames": 60, "processed": 58, "dropped": 2,
-                 "auc5": 80.0, "fps": 5.0, "fitted_pose_sigma_rotation_deg": 0.05,
+                 "scored_pairs": 39, "auc5": 80.0, "fps": 5.0, "fitted_pose_sigma_rotation_deg": 0.05,
                  "fitted_pose_sigma_direction": 0.02}  # AUC@5 and the fitted sigmas over the scored recording only
     table = fleet.report_table(FLEET, {"recordings": rows, "totals": t})
-    assert "| 80.0 | 0.05 | 0.02 | 4.0 |" in table.splitlines()[2], table  # a's row
+    assert "| 39 | 80.0 | 0.05 | 0.02 | 4.0 |" in table.splitlines()[2], table  # a's row
+    assert "| 39 | 80.0 (mean by scored_pairs) | 0.05 (mean by scored_pairs) |" in table.splitlines()[-1], table
     assert "| c | failed |" in table and "BagError: unreadable" in table and "1 not run (interrupted)" in table
     fig = fleet._plot(FLEET, tmp_path / "report.png", rows)
     assert (tmp_path / "report.png").stat().st_size > 0
@@ -263,6 +265,21 @@ def test_the_report_totals_the_finished_recordings_and_names_the_failed(tmp_path
     names = fig.axes[-1].get_xticklabels()
     assert [n.get_text() for n in names] == ["a", "b", "c", "d"]
     assert [n.get_color() for n in names] == ["tab:blue", "tab:blue", "tab:red", "tab:red"]
+
+
+def test_the_fleets_auc_is_that_of_all_its_pairs_not_of_an_average_recording():
+    """A short recording that went badly and an hour-long one that went well: the total AUC@5 is that of all their
+    pairs scored together (a plain mean over the two recordings put it halfway)."""
+    from nmnet_ros.core.geometry import pose_auc
+    from nmnet_ros.tools.replay import FLEET
+
+    rng = np.random.default_rng(0)
+    errors = [rng.uniform(0, 20, 30), rng.exponential(0.8, 3000)]
+    rows = [{"name": str(n), "status": "ok", "scored_pairs": len(e), "auc5": 100 * pose_auc(e)[0]}
+            for n, e in enumerate(errors)]
+    pooled = 100 * pose_auc(np.concatenate(errors))[0]
+    plain = (rows[0]["auc5"] + rows[1]["auc5"]) / 2
+    assert abs(pooled - plain) > 20 and fleet.totals(FLEET, rows)["auc5"] == pytest.approx(pooled, abs=0.1)
 
 
 @pytest.mark.slow

@@ -47,6 +47,11 @@ class Column:
     header: str
     fmt: str = "{:.1f}"
     total: str | None = None  # "sum", "mean" (over the recordings that have it) or None
+    weight: str | None = None  # the column a mean is weighted by: a recording's pairs, so the total is the fleet's own
+
+    def total_note(self) -> str:
+        """What the totals row says after a mean: how it was taken."""
+        return "" if self.total != "mean" else " (mean)" if self.weight is None else f" (mean by {self.weight})"
 
 
 @dataclass(frozen=True)
@@ -355,16 +360,20 @@ def map_tasks(fn: Callable, calls: dict[str, tuple], *, common: tuple = (), addr
 
 
 def totals(job: Job, rows: list[dict]) -> dict:
-    """The run's totals: recordings by status, and each column's sum or mean over the complete recordings."""
+    """The run's totals: recordings by status, and each column's sum or mean over the complete recordings. A mean
+    with a ``weight`` counts each recording by it: AUC@5 weighted by the pairs scored is the AUC@5 of all the fleet's
+    pairs together (a mean over pairs), not of an average recording, which a short one would sway as much as an
+    hour-long one."""
     ok = [r for r in rows if r["status"] == "ok"]
     out = {"recordings": len(rows), "ok": len(ok), "failed": sum(r["status"] == "failed" for r in rows),
            "interrupted": sum(r["status"] == "interrupted" for r in rows)}
     for c in job.columns:
-        values = [r[c.key] for r in ok if r.get(c.key) is not None]
+        have = [r for r in ok if r.get(c.key) is not None and (c.weight is None or (r.get(c.weight) or 0) > 0)]
+        weights = [1 if c.weight is None else r[c.weight] for r in have]
         if c.total == "sum":
-            out[c.key] = sum(values)
+            out[c.key] = sum(r[c.key] for r in have)
         elif c.total == "mean":
-            out[c.key] = sum(values) / len(values) if values else None
+            out[c.key] = sum(r[c.key] * w for r, w in zip(have, weights, strict=True)) / sum(weights) if have else None
     return out
 
 
@@ -392,7 +401,7 @@ def report_table(job: Job, report: dict) -> str:
         lines.append(f"| {r['name']} | {r['status']} | {cells} | {note.replace('|', '/').replace(chr(10), ' ')} |")
     t = report["totals"]
     stopped = f", {t['interrupted']} not run (interrupted)" if t["interrupted"] else ""
-    cells = " | ".join(_cell(t.get(c.key), c.fmt) + (" (mean)" if c.total == "mean" else "") if c.total else ""
+    cells = " | ".join(_cell(t.get(c.key), c.fmt) + c.total_note() if c.total else ""
                        for c in job.columns)
     lines.append(f"| **all ({t['recordings']})** | {t['ok']} ok, {t['failed']} failed{stopped} | {cells} | |")
     return "\n".join(lines)

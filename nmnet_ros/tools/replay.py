@@ -269,9 +269,10 @@ def _refused_for_a_fleet(args: argparse.Namespace) -> None:
 
 FLEET = fleet.Job("replay", _replay_into, "summary.json", (
     fleet.Column("frames", "frames", "{}", "sum"), fleet.Column("processed", "processed", "{}", "sum"),
-    fleet.Column("dropped", "dropped", "{}", "sum"), fleet.Column("auc5", "AUC@5", total="mean"),
-    fleet.Column("fitted_pose_sigma_rotation_deg", "fitted pose_sigma_rotation_deg", "{:.3g}", "mean"),
-    fleet.Column("fitted_pose_sigma_direction", "fitted pose_sigma_direction", "{:.3g}", "mean"),
+    fleet.Column("dropped", "dropped", "{}", "sum"), fleet.Column("scored_pairs", "pairs scored", "{}", "sum"),
+    fleet.Column("auc5", "AUC@5", total="mean", weight="scored_pairs"),
+    fleet.Column("fitted_pose_sigma_rotation_deg", "fitted pose_sigma_rotation_deg", "{:.3g}", "mean", "scored_pairs"),
+    fleet.Column("fitted_pose_sigma_direction", "fitted pose_sigma_direction", "{:.3g}", "mean", "scored_pairs"),
     fleet.Column("fps", "frames/s", total="mean")), _refused_for_a_fleet)
 
 
