@@ -8,6 +8,7 @@ wrong and what the sender should do.
 from __future__ import annotations
 
 from array import array
+from typing import Any
 
 import cv2
 import numpy as np
@@ -190,7 +191,7 @@ def decode_compressed(fmt: str, data: Buffer, max_pixels: int = MAX_PIXELS) -> n
     return img
 
 
-def decode_message(msg, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+def decode_message(msg: Any, max_pixels: int = MAX_PIXELS) -> np.ndarray:
     """An Image or CompressedImage message (rclpy or rosbags; told apart by its ``format`` field) -> array, with the
     checks above; ImageError when unusable."""
     if hasattr(msg, "format"):

@@ -14,6 +14,8 @@ gap instead of bridging it.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ..core.geometry import PoseEstimate, quat_to_rot, rotation_error_deg
@@ -27,7 +29,7 @@ REF_MATCHES = 200
 NO_ESTIMATE_VAR = 1e6  # variance on every axis of a frame without an estimate
 
 
-def stamp_seconds(stamp) -> float:
+def stamp_seconds(stamp: Any) -> float:
     """A header stamp (builtin_interfaces/Time: sec, nanosec) in seconds; NaN when it is no ROS time (nanosec
     outside 0 .. 999,999,999), which :func:`~nmnet_ros.core.pipeline.stamp_order` refuses as ``invalid_stamp``."""
     return stamp.sec + 1e-9 * stamp.nanosec if 0 <= stamp.nanosec < 1_000_000_000 else float("nan")

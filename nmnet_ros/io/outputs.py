@@ -17,6 +17,11 @@ import zipfile
 from collections.abc import Callable, Iterable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+    from matplotlib.figure import Figure
 
 LIBRARY = "nmnet_ros"  # the mark: an .mcap header's library, a JSON's or checkpoint's written_by, a PNG's Software
 
@@ -181,7 +186,7 @@ def write_markdown(path: Path, text: str) -> None:
     replace_atomically(path, lambda tmp: tmp.write_text(text))
 
 
-def save_figure(fig, path: Path) -> Path:
+def save_figure(fig: Figure, path: Path) -> Path:
     """A matplotlib figure as a PNG at ``path`` (also without a .png suffix), marked; the figure is closed."""
     import matplotlib.pyplot as plt
 
@@ -191,7 +196,7 @@ def save_figure(fig, path: Path) -> Path:
     return path
 
 
-def save_image(path: Path, bgr) -> Path:
+def save_image(path: Path, bgr: np.ndarray) -> Path:
     """A BGR (or mono) image as a marked PNG at ``path``."""
     import matplotlib.image
 

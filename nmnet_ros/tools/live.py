@@ -206,7 +206,7 @@ class _Player:
                                "this machine failed, or the node is still starting; its log above may say which")
         self.spin_for(1.0)
 
-    def publish(self, msg, is_image: bool, camera: Camera | None) -> None:
+    def publish(self, msg: Any, is_image: bool, camera: Camera | None) -> None:
         """One of the bag's messages; with ``camera``, its camera_info goes with every frame."""
         if not is_image:
             self.pub_info.publish(msg)
