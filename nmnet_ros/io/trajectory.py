@@ -239,6 +239,8 @@ class Trajectory:
         the same rule for frames read one at a time."""
         s = np.asarray(stamps, np.float64)
         poses = self.poses_at(s)
+        if not s.size:
+            return poses, False
         frames = np.sort(s)
         inside = self.stamps[(self.stamps >= frames[0] - STAMP_TOLERANCE_S) & (self.stamps <= frames[-1] + STAMP_TOLERANCE_S)]
         per_frame = inside.size > 0 and bool(np.all(_nearest_gap(frames, inside) <= STAMP_TOLERANCE_S))
