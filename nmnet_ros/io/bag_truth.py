@@ -54,9 +54,9 @@ def pose_from_msg(msg: Any) -> np.ndarray:
 
 def bag_ground_truth(reader: BagReader, wanted: str | None = None) -> Trajectory | None:
     """The bag's ground-truth poses (:data:`GT_TYPES` on ``wanted``, else on :func:`pick_ground_truth`'s topic, by
-    header stamp) as a :class:`Trajectory`, looked up as a ``--gt`` TUM file is: a motion-capture stream at its own
-    rate and stamps gives each frame its pose interpolated between the stream's (:meth:`Trajectory.poses_at`). None without the topic or
-    its messages; the pose topics not taken are noted in the reader's warnings."""
+    header stamp) as a :class:`Trajectory`, looked up as a ``--gt`` TUM file is (:class:`~.trajectory.FrameTruth`): a pose per
+    frame at the frames' stamps only, a motion-capture stream at its own rate and stamps interpolated between its
+    poses. None without the topic or its messages; the pose topics not taken are noted in the reader's warnings."""
     topic, note = pick_ground_truth(reader.topics, wanted)
     if note:
         reader.warnings.append(note)
