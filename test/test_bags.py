@@ -290,6 +290,34 @@ def test_a_replay_scores_no_frame_its_ground_truth_left_out(tmp_path):
     assert r.returncode == 0 and s["processed"] == 31 and s["scored_pairs"] == 3, (r.stderr, s)
 
 
+def test_a_live_replays_score_does_not_depend_on_the_frames_the_node_dropped(tmp_path):
+    """A live replay scores the pose messages the node recorded. Ground truth a pose per frame, some frames without
+    one (unevenly spaced, as nmnet label's keyframes): given every frame played, the frames without a pose have none
+    whichever frames the node dropped. Read as recorded, a dropped frame's pose lies between two recorded frames, as
+    ground truth at its own rate does, and the rest were interpolated (10 pairs scored here instead of 2)."""
+    from nmnet_ros.io.bags import BagReader
+    from nmnet_ros.io.mcap_out import McapOutput
+    from nmnet_ros.io.trajectory import read_tum
+    from nmnet_ros.tools.live import recording_summary
+
+    assert make_bag(data_dir("kitti-07"), tmp_path / "b.mcap", "mcap", compressed=False, frames=range(12)) == 12
+    r, s = replay_json(tmp_path / "b.mcap", tmp_path, "--detector", "sift", "--selector", "ratio+magsac")
+    assert r.returncode == 0 and s["processed"] == 12, r.stderr
+    rows = [ln for ln in (data_dir("kitti-07") / "groundtruth.txt").read_text().splitlines() if not ln.startswith("#")]
+    (tmp_path / "gt.txt").write_text("".join(rows[i] + "\n" for i in (0, 1, 2, 4, 6, 8, 10, 11)))
+    truth = read_tum(tmp_path / "gt.txt")
+    played = [m.log_time_ns for m in BagReader(tmp_path / "o.mcap").messages({"/nmnet_node/relative_pose"})]
+    assert len(played) == 12
+    dropped = McapOutput(tmp_path / "dropped.mcap")  # the node dropped frame 1: no message of it
+    for m in BagReader(tmp_path / "o.mcap").messages({"/nmnet_node/relative_pose"}):
+        if m.log_time_ns != played[1]:
+            dropped.write(m.topic, m.msgtype, m.msg, m.log_time_ns)
+    dropped.close()
+    assert recording_summary(tmp_path / "o.mcap", truth, frames=played)[0]["scored_pairs"] == 3  # 0-1, 1-2, 10-11
+    assert recording_summary(tmp_path / "o.mcap", truth)[0]["scored_pairs"] == 3  # nothing dropped: the same
+    assert recording_summary(tmp_path / "dropped.mcap", truth, frames=played)[0]["scored_pairs"] == 2  # 0-2, 10-11
+
+
 @pytest.mark.parametrize("fmt, out, sig", [("mcap", "bag", signal.SIGINT), ("ros1", "bag.bag", signal.SIGTERM),
                                            ("mcap", "bag.mcap", signal.SIGTERM)],
                          ids=["mcap-SIGINT", "ros1-SIGTERM", "mcap-file-SIGTERM"])

@@ -217,6 +217,7 @@ class _Player:
         self.sent_at[stamp] = time.monotonic()
         self.pub_img.publish(msg)
         self.stats["published"] += 1
+        self.stats["stamps"].append(stamp)
         self.last_stamp = stamp
 
     def finish(self) -> None:
@@ -239,7 +240,8 @@ class _Player:
 
 def new_stats() -> dict:
     """A live replay's counts, as :func:`play_live` fills them: frames published, results, latencies, diagnostics."""
-    return {"published": 0, "results": 0, "latency_ms": [], "diagnostics": {}, "node_exit": None}
+    return {"published": 0, "results": 0, "latency_ms": [], "diagnostics": {}, "node_exit": None,
+            "stamps": []}  # every frame published (ns): the ground truth's frames, those the node dropped too
 
 
 def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: list[str] | None = None,
@@ -310,11 +312,24 @@ def play_live(reader: BagReader, out: McapOutput, rate: float = 1.0, node_args: 
                 node_proc.kill()
 
 
-def recording_summary(path: Path, truth: Trajectory | None, sigmas: tuple[float, float] = SIGMAS) -> tuple[dict, dict]:
+def _truth_lookup(truth: Trajectory, frames: list[int] | None) -> Callable[[int], np.ndarray | None]:
+    """The ground truth's pose at a pose message's stamp (ns), or None: see :func:`recording_summary`."""
+    if not frames:
+        look = FrameTruth(truth)
+        return lambda t_ns: look.at(t_ns / 1e9)
+    poses, _ = truth.at_frames(np.asarray(frames, np.float64) / 1e9)
+    return {t: T for t, T in zip(frames, poses, strict=True) if not np.isnan(T[0, 0])}.get
+
+
+def recording_summary(path: Path, truth: Trajectory | None, sigmas: tuple[float, float] = SIGMAS,
+                      frames: list[int] | None = None) -> tuple[dict, dict]:
     """A recording of the node's outputs, read once: its ``~/relative_pose`` stream scored against ``truth`` as the
     offline replay scores its results (:class:`~nmnet_ros.tools.scoring.PairScores`; "no estimate" is a failure), and the
     feature tracks of its ``~/matches`` (:class:`~nmnet_ros.core.tracks.TrackLengths`, counted as they are read).
-    ``sigmas``: the node's pose_sigma_* parameters, which the recorded covariances were published with.
+    ``sigmas``: the node's pose_sigma_* parameters, which the recorded covariances were published with. ``frames``:
+    the stamps (ns) of every frame played into the node, those it dropped too (:func:`new_stats`' ``stamps``); the
+    ground truth is then looked up as for a folder of those frames (:meth:`Trajectory.at_frames`), so the frames the
+    node dropped do not change it. Without them, frame by frame as recorded (:class:`FrameTruth`).
 
     Each pose message is relative to the frame of the message before it (see :mod:`nmnet_ros.interface.posemsg`); the
     first (the node's first frame, or a recording that starts later) relates to no frame here and is not scored.
@@ -323,7 +338,7 @@ def recording_summary(path: Path, truth: Trajectory | None, sigmas: tuple[float,
     scores, tracks = PairScores(sigmas), TrackLengths()  # scored and counted as they come: a long recording is not held
     first = last = None  # the pose messages' first and last stamps
     T_prev, any_truth = None, False
-    look = None if truth is None else FrameTruth(truth)  # the frames with a pose message, in the order recorded
+    truth_at = None if truth is None else _truth_lookup(truth, frames)
     for m in BagReader(path).messages({pose_topic, matches_topic}):
         if m.topic == matches_topic:
             tracks.add(matches_of_cloud(m.msg.point_step, m.msg.fields, m.msg.data)["track_id"])
@@ -331,7 +346,7 @@ def recording_summary(path: Path, truth: Trajectory | None, sigmas: tuple[float,
         last = m.log_time_ns / 1e9
         if truth is None:
             continue
-        T = look.at(last)
+        T = truth_at(m.log_time_ns)
         if first is not None:  # the first message relates to no frame here
             o, p = m.msg.pose.pose.orientation, m.msg.pose.pose.position
             cov = np.reshape(m.msg.pose.covariance, (6, 6))

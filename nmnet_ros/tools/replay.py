@@ -404,7 +404,8 @@ def main_live(args: argparse.Namespace, reader: BagReader, out: McapOutput, came
         out.close()
         for w in reader.new_warnings():  # a damaged or split bag, pose topics not taken as ground truth
             print(f"warning: {w}")
-    summary = live_summary(stats, time.perf_counter() - t0, *recording_summary(args.out, truth, out.pose_sigmas), params,
+    wall = time.perf_counter() - t0
+    summary = live_summary(stats, wall, *recording_summary(args.out, truth, out.pose_sigmas, stats["stamps"]), params,
                            interrupted)
     print(f"output: {args.out} ({out.count} messages)")
     if args.json:
