@@ -288,6 +288,9 @@ def test_a_replay_scores_no_frame_its_ground_truth_left_out(tmp_path):
     assert make_bag(folder, tmp_path / "b.mcap", "mcap", compressed=False) == 31
     r, s = replay_json(tmp_path / "b.mcap", tmp_path, "--detector", "sift", "--selector", "ratio+magsac")
     assert r.returncode == 0 and s["processed"] == 31 and s["scored_pairs"] == 3, (r.stderr, s)
+    said = ("the ground truth has no pose for 21 of 31 frames (its poses are the frames' own, and these have none; at "
+            f"{float(images[4][0]):.3f}, ")
+    assert f"warning: {said}" in r.stdout and any(w.startswith(said) for w in s["recording_warnings"]), r.stdout
 
 
 def test_a_live_replays_score_does_not_depend_on_the_frames_the_node_dropped(tmp_path):
@@ -1255,6 +1258,7 @@ def test_ground_truth_poses_that_are_not_numbers_are_a_gap_not_pairs_scored_agai
         assert (f"warning: {source}: 2 of 6 ground-truth poses are not finite numbers (NaN, or a zero quaternion: "
                 "a lost track?): left out") in r.stdout, r.stdout
         assert s["scored_pairs"] == 1 and s["still_pairs"] == 0 and s["median_trans_deg"] < 2.0, s  # frames 60-61
+        assert "the ground truth has no pose for 2 of 6 frames (its poses are the frames' own" in r.stdout, r.stdout
 
     def lose_all(topic, msg):
         if topic == "/ground_truth/pose":
@@ -1355,6 +1359,7 @@ def test_ground_truth_at_its_own_rate_and_stamps_scores_every_frame(raw_bag, tmp
         assert r.returncode == 0, r.stderr
     exact, mocap_run = runs["exact"], runs["mocap"]
     assert exact["scored_pairs"] == mocap_run["scored_pairs"] == 5, runs
+    assert exact["recording_warnings"] == mocap_run["recording_warnings"] == [], runs  # every frame has a pose
     assert abs(mocap_run["median_trans_deg"] - exact["median_trans_deg"]) < 0.02, runs  # 0.005 measured
     assert abs(mocap_run["median_rot_deg"] - exact["median_rot_deg"]) < 0.02, runs  # 0.011 measured
     truth = bag_ground_truth(BagReader(mocap), "/ground_truth/pose")

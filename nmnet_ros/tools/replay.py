@@ -35,7 +35,7 @@ from ..io.outputs import not_a_folder, not_an_input, not_someone_elses, output_f
 from ..io.trajectory import FrameTruth, Trajectory, read_tum
 from . import fleet
 from .report import PLOTS, print_scores, print_summary, print_tracks, write_plots
-from .scoring import Run, truth_missed
+from .scoring import Run, truth_missed, truth_uncovered
 
 BASELINE = {"detector": "sift", "pose_estimator": "classic"}
 
@@ -157,7 +157,9 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
             bar.close()
         run.warnings = notes.counts
         notes.close()
-    for w in [*reader.new_warnings(), truth_missed(truth, [s.stamp for s in run.steps])]:
+    stamps = [s.stamp for s in run.steps]
+    uncovered = None if look is None else truth_uncovered(stamps, [s.T is not None for s in run.steps], look.per_frame)
+    for w in [*reader.new_warnings(), truth_missed(truth, stamps), uncovered]:
         if w:
             log(f"warning: {w}")
             run.recording_warnings.append(w)

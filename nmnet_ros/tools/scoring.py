@@ -141,6 +141,20 @@ def truth_missed(truth: Trajectory | None, stamps: list[float]) -> str | None:
             "must be stamped on the same clock")
 
 
+def truth_uncovered(stamps: list[float], posed: list[bool], per_frame: bool | None) -> str | None:
+    """What to say when the ground truth has a pose for some of the frames but not all (None: all, or none, which
+    :func:`truth_missed` says): the pairs with the others are not scored. ``per_frame``: the ground truth is a pose
+    per frame (:class:`~nmnet_ros.io.trajectory.FrameTruth`), which gives a frame without its own none."""
+    missing = [t for t, p in zip(stamps, posed, strict=True) if not p]
+    if not missing or len(missing) == len(stamps):
+        return None
+    why = ("its poses are the frames' own, and these have none" if per_frame else
+           "none close enough to their stamps to take or interpolate")
+    listed = ", ".join(f"{t:.3f}" for t in missing[:5]) + (", ..." if len(missing) > 5 else "")
+    return (f"the ground truth has no pose for {len(missing)} of {len(stamps)} frames ({why}; at {listed} s): "
+            "the pairs with them are not scored")
+
+
 @dataclass
 class Step:
     """What a pass keeps of a frame: its counts and pose, not its matches (58 KB a frame at 2000 keypoints: an
