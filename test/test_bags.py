@@ -1277,6 +1277,31 @@ def test_ground_truth_poses_that_are_not_numbers_are_a_gap_not_pairs_scored_agai
     assert not (tmp_path / "tf.mcap").exists()
 
 
+def test_frames_ground_truth_at_its_own_rate_does_not_reach_are_named(raw_bag, tmp_path):
+    """A ``--gt`` stream at its own rate (20 Hz, 4 ms after the frames) that loses the camera for 0.3 s: the frames
+    in the gap have no pose, and the replay says so and why, rather than scoring fewer pairs without a word."""
+    from nmnet_ros.interface.posemsg import rot_to_quat
+    from nmnet_ros.io.datasets import Sequence
+    from nmnet_ros.io.trajectory import between
+
+    seq = Sequence.load(data_dir("kitti-07"))
+    lines = []
+    for i in range(60, 66):
+        for delay in (0.004, 0.054):
+            t = seq.stamps[i] + delay
+            if not seq.stamps[62] - 0.1 < t < seq.stamps[63] + 0.1:  # the tracker lost the camera around frame 63
+                T = between(seq.poses[i], seq.poses[i + 1], delay / (seq.stamps[i + 1] - seq.stamps[i]))
+                q = rot_to_quat(T[:3, :3])
+                lines.append(f"{t:.6f} {T[0, 3]} {T[1, 3]} {T[2, 3]} {q[0]} {q[1]} {q[2]} {q[3]}\n")
+    (tmp_path / "gt.txt").write_text("".join(lines))
+    r, s = replay_json(raw_bag, tmp_path, "--gt", str(tmp_path / "gt.txt"), "--detector", "sift", "--selector",
+                       "ratio+magsac")
+    assert r.returncode == 0 and s["scored_pairs"] == 2, (r.stderr, s)  # 60-61, 64-65
+    said = (f"the ground truth has no pose for 2 of 6 frames (none close enough to their stamps to take or interpolate; "
+            f"at {seq.stamps[62]:.3f}, {seq.stamps[63]:.3f} s): the pairs with them are not scored")
+    assert s["recording_warnings"] == [said] and f"warning: {said}" in r.stdout, (r.stdout, s)
+
+
 def test_ground_truth_from_a_tum_file_scores_as_the_bags_own(raw_bag, tmp_path):
     """`--gt FILE` (TUM) and `--gt-tf world:camera_gt` (the bag's /tf) give the numbers the bag's own PoseStamped
     give, offline and in --live's scoring; a bad file, or a transform the bag lacks, stops the replay before the output
