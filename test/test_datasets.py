@@ -212,6 +212,8 @@ def test_frames_read_one_at_a_time_get_the_poses_a_folder_gives_them():
         for p, q in zip(poses, one_at_a_time, strict=True):
             assert q is None or np.array_equal(p, q)
     assert np.allclose(Trajectory(frames[posed] + 0.013, T[posed]).at_frames(frames[4:5])[0][0, 0, 3], 3.87)
+    none, is_per_frame = per_frame.at_frames(np.zeros(0))  # no frames: no poses (not an IndexError)
+    assert none.shape == (0, 4, 4) and not is_per_frame
 
 
 def test_ground_truth_at_its_own_rate_is_interpolated_to_the_frames_stamps():

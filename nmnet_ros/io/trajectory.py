@@ -163,11 +163,18 @@ def parse_pose(text: str) -> np.ndarray:
 STAMP_TOLERANCE_S = 1e-6  # a pose "at" a frame's stamp: the same time, as seconds from the same nanoseconds
 
 
-def _nearest_gap(sorted_stamps: np.ndarray, stamps: np.ndarray) -> np.ndarray:
-    """Per stamp, the time to the nearest of ``sorted_stamps`` (ascending, not empty)."""
-    after = np.searchsorted(sorted_stamps, stamps).clip(0, len(sorted_stamps) - 1)
+def nearest_index(sorted_stamps: np.ndarray, stamps: np.ndarray | float) -> np.ndarray:
+    """Index of the one of ``sorted_stamps`` (ascending, not empty) nearest in time to each stamp (the earlier one on a
+    tie)."""
+    s = np.atleast_1d(np.asarray(stamps, np.float64))
+    after = np.searchsorted(sorted_stamps, s).clip(0, len(sorted_stamps) - 1)
     before = (after - 1).clip(0)
-    return np.minimum(np.abs(sorted_stamps[after] - stamps), np.abs(sorted_stamps[before] - stamps))
+    return np.where(np.abs(sorted_stamps[before] - s) <= np.abs(sorted_stamps[after] - s), before, after)
+
+
+def _at_one_of(sorted_stamps: np.ndarray, stamps: np.ndarray) -> np.ndarray:
+    """Per stamp, whether one of ``sorted_stamps`` is at it (:data:`STAMP_TOLERANCE_S`)."""
+    return np.abs(sorted_stamps[nearest_index(sorted_stamps, stamps)] - stamps) <= STAMP_TOLERANCE_S
 
 
 @dataclass
@@ -193,10 +200,7 @@ class Trajectory:
 
     def nearest(self, stamps: np.ndarray | float) -> np.ndarray:
         """Index of the pose nearest in time to each stamp (the earlier one on a tie)."""
-        s = np.atleast_1d(np.asarray(stamps, np.float64))
-        after = np.searchsorted(self.stamps, s).clip(0, len(self.stamps) - 1)
-        before = (after - 1).clip(0)
-        return np.where(np.abs(self.stamps[before] - s) <= np.abs(self.stamps[after] - s), before, after)
+        return nearest_index(self.stamps, stamps)
 
     def lookup(self, stamps: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """Per stamp, the nearest pose's index and whether it lies within half the spacing: a frame before, after
@@ -243,9 +247,9 @@ class Trajectory:
             return poses, False
         frames = np.sort(s)
         inside = self.stamps[(self.stamps >= frames[0] - STAMP_TOLERANCE_S) & (self.stamps <= frames[-1] + STAMP_TOLERANCE_S)]
-        per_frame = inside.size > 0 and bool(np.all(_nearest_gap(frames, inside) <= STAMP_TOLERANCE_S))
+        per_frame = inside.size > 0 and bool(_at_one_of(frames, inside).all())
         if per_frame:
-            poses[_nearest_gap(self.stamps, s) > STAMP_TOLERANCE_S] = np.nan
+            poses[~_at_one_of(self.stamps, s)] = np.nan
         return poses, per_frame
 
     def at(self, stamp: float) -> np.ndarray | None:
