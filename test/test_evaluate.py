@@ -87,3 +87,29 @@ def test_bins_give_each_methods_precision_and_recall_over_its_pairs_with_labels(
     assert rows["easy"]["a"]["precision"] is None  # no labelled inlier there: undefined, not 0
     assert mean_prf(prfs["a"])["precision"] == rows["hard"]["a"]["precision"]
     assert group_table(rows, "P / R", prf_cell).splitlines()[2:] == ["| a | 70.0 / 75.0 | - |"]
+
+
+def test_average_precision_rewards_an_order_that_puts_the_inliers_first():
+    """The check a classifier for low-inlier pairs must pass (beat the ratio's order there) was a scratch script;
+    the AP is the mean precision at each labelled inlier's rank, independent of any cut."""
+    from nmnet_ros.core.metrics import average_precision
+
+    labels = np.array([1, 0, 1, 0, 0], bool)
+    assert average_precision(np.array([5, 4, 3, 2, 1.0]), labels) == pytest.approx(100 * (1 / 1 + 2 / 3) / 2)
+    assert average_precision(np.array([5, 1, 4, 2, 3.0]), labels) == pytest.approx(100.0)  # inliers first
+    assert average_precision(np.array([1, 5, 2, 4, 3.0]), labels) == pytest.approx(100 * (1 / 4 + 2 / 5) / 2)
+    assert average_precision(np.zeros(5), labels) == pytest.approx(100 * (1 / 1 + 2 / 3) / 2)  # ties: given order
+    assert np.isnan(average_precision(np.arange(3.0), np.zeros(3, bool)))  # no inlier: undefined, not 0
+    with pytest.raises(ValueError, match="differ in shape"):
+        average_precision(np.arange(3.0), labels)
+
+
+def test_bins_give_each_ordered_methods_average_precision():
+    from nmnet_ros.tools.evaluate import ap_cell, binned, group_table
+
+    errors = {"net": np.ones(3), "fit": np.ones(3)}
+    aps = {"net": np.array([40.0, 60.0, np.nan]), "fit": np.full(3, np.nan)}
+    rows = binned(errors, ["hard", "hard", "easy"], aps=aps)
+    assert rows["hard"]["net"]["ap"] == pytest.approx(50.0) and rows["easy"]["net"]["ap"] is None
+    assert rows["hard"]["fit"]["ap"] is None  # a fit without an order has none
+    assert group_table(rows, "AP", ap_cell, ["net"]).splitlines()[2:] == ["| net | 50.0 | - |"]

@@ -367,6 +367,9 @@ def test_eval_scores_several_folders_in_parallel_as_it_scores_them_in_one_proces
         assert {k: v for k, v in got["methods"][name].items() if k != "sec_per_pair"} == pytest.approx(
             {k: v for k, v in metrics.items() if k != "sec_per_pair"}, abs=1e-9), name
     assert sum(b["pairs"] for b in got["bins"]["gap"].values()) == len(pairs) == 18
+    assert 0 < got["methods"]["nmnet"]["ap"] <= 100 and got["methods"]["ratio+magsac"]["ap"] is None  # a fit: no order
+    assert all(0 < b["nmnet"]["ap"] <= 100 for b in got["bins"]["inlier_ratio"].values())
+    assert "| average precision (%) of the order by putative inlier ratio |" in r.stdout
     assert np.isfinite(got["auc5_vs_reference"]["oracle"]["auc5"])
     none = _nmnet("eval", str(tmp_path / "gone-a"), str(tmp_path / "gone-b"), "--methods", "ratio", env=env)
     assert none.returncode == 2 and "no pairs to evaluate in any of the folders" in none.stderr, none.stderr

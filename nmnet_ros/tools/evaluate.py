@@ -1,8 +1,9 @@
 """``nmnet eval``: every selector on the same putative matches, against ground truth.
 
 Per method: precision / recall / F-measure of the selected matches (mean over pairs, the
-paper's P/R/F), pose AUC@5/10/20 and median rotation/translation errors (a failed pair counts
-as 180 degrees), and selection + pose time per pair. With ``--seeds N`` every method with a
+paper's P/R/F), the average precision (AP) of the order it ranks the matches in where it has one
+(NM-Net's scores, the ratio's), pose AUC@5/10/20 and median rotation/translation errors (a failed
+pair counts as 180 degrees), and selection + pose time per pair. With ``--seeds N`` every method with a
 MAGSAC++/RANSAC stage runs N times per pair with different random samples and the metrics average
 over the runs: on hard pairs one seed's luck moves a method's AUC@5 by a few tenths, about the
 size of the differences between the best pipelines.
@@ -22,10 +23,10 @@ import numpy as np
 
 from ..core.detectors import make_detector
 from ..core.geometry import pose_auc, pose_error_deg
-from ..core.metrics import prf
+from ..core.metrics import average_precision, prf
 from ..core.model import NEIGHBORS, load_model
 from ..core.model_fast import precision_note
-from ..core.selectors import METHODS, NETWORK, ROBUST, build
+from ..core.selectors import METHODS, NETWORK, ROBUST, Correspondences, Selection, build
 from ..core.settings import POSE_ESTIMATORS, unread
 from ..io.cache import FeatureCache, default_cache_dir
 from ..io.outputs import output_file, save_figure, write_json
@@ -41,6 +42,18 @@ class Runs:
     prfs: np.ndarray  # (pairs, seeds, 3): every run's precision, recall, F (%); NaN on a pair without a labelled inlier
     errors: np.ndarray  # (pairs, seeds, 2): every run's rotation and translation error, degrees
     secs: list[float]  # each pair's time of one full run (selection + pose)
+    aps: np.ndarray  # (pairs,): the average precision (%) of the method's order; NaN without an order or a labelled inlier
+
+
+# the methods that rank the matches by the descriptor distance ratio (lower first); NM-Net's rank by their scores
+RATIO_ORDERED = ("ratio", "ratio+prosac")
+
+
+def ranking(name: str, sel: Selection, c: Correspondences) -> np.ndarray | None:
+    """The order a method ranks the putative matches in (higher first), or None: NM-Net's scores, the ratio's."""
+    if sel.scores is not None:
+        return sel.scores
+    return -c.ratio if name in RATIO_ORDERED else None
 
 
 def score(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
@@ -53,7 +66,7 @@ def score(pairs: list[PairData], methods: list[str], weights: dict[str, str] | N
     for name in methods:
         select = build(name, config, weights)
         runs = seeds if name in ROBUST else 1
-        prfs, errs, secs, t_method = [], [], [], time.perf_counter()
+        prfs, errs, secs, aps, t_method = [], [], [], [], time.perf_counter()
         for p in progress(pairs, name, "pair"):
             c = to_correspondences(p)
             t0 = time.perf_counter()
@@ -64,8 +77,10 @@ def score(pairs: list[PairData], methods: list[str], weights: dict[str, str] | N
             scored = [prf(sel.mask, p.labels) if p.labels.any() else dict.fromkeys(PRF, np.nan) for sel in sels]
             prfs.append([[m[k] for k in PRF] for m in scored] * (seeds // runs))
             errs.append([pose_error_deg(sel.pose, p.R, p.t) for sel in sels] * (seeds // runs))
+            order = ranking(name, sels[0], c)  # the seeds share it (NM-Net's pass, the ratio)
+            aps.append(np.nan if order is None else average_precision(order, p.labels))
         out[name] = Runs(np.array(prfs, np.float64).reshape(len(pairs), seeds, 3),
-                         np.array(errs, np.float64).reshape(len(pairs), seeds, 2), secs)
+                         np.array(errs, np.float64).reshape(len(pairs), seeds, 2), secs, np.array(aps, np.float64))
         log(f"eval: {name}: {len(pairs)} pairs x {runs} run(s) in {time.perf_counter() - t_method:.0f} s")
     return out
 
@@ -79,8 +94,15 @@ def mean_prf(prfs: np.ndarray) -> dict[str, float | None]:
     return {k: float(defined[:, i].mean()) if len(defined) else None for i, k in enumerate(PRF)}
 
 
+def mean_ap(aps: np.ndarray) -> float | None:
+    """Mean average precision (%) over the pairs where it is defined; None where it is nowhere (no order, no inlier)."""
+    defined = aps[~np.isnan(aps)]
+    return float(defined.mean()) if len(defined) else None
+
+
 def summarize(runs: dict[str, Runs]) -> dict:
-    """{"metrics": {method: metrics}, "errors": {method: (pairs, seeds) errors}, "prfs": {method: (pairs, seeds, 3)}}:
+    """{"metrics": {method: metrics}, "errors": {method: (pairs, seeds) errors}, "prfs": {method: (pairs, seeds, 3)},
+    "aps": {method: (pairs,)}}:
     each metric is the mean over all runs, except the time, that of one run; a pair's error is the larger of its
     rotation and translation errors."""
     out, errors = {}, {}
@@ -88,19 +110,21 @@ def summarize(runs: dict[str, Runs]) -> dict:
         e = r.errors
         aucs = pose_auc(e.max(2).ravel())
         out[name] = {
-            **mean_prf(r.prfs),
+            **mean_prf(r.prfs), "ap": mean_ap(r.aps),
             "auc5": 100 * aucs[0], "auc10": 100 * aucs[1], "auc20": 100 * aucs[2],
             "median_rot_deg": float(np.median(e[..., 0])), "median_trans_deg": float(np.median(e[..., 1])),
             "pairs": len(e), "sec_per_pair": float(np.mean(r.secs)),
         }
         errors[name] = e.max(2)
-    return {"metrics": out, "errors": errors, "prfs": {name: r.prfs for name, r in runs.items()}}
+    return {"metrics": out, "errors": errors, "prfs": {name: r.prfs for name, r in runs.items()},
+            "aps": {name: r.aps for name, r in runs.items()}}
 
 
 def merge(parts: list[dict[str, Runs]]) -> dict[str, Runs]:
     """Several folders' runs as one list of pairs, in the order given (the bootstrap draws by position)."""
     return {name: Runs(np.concatenate([p[name].prfs for p in parts]), np.concatenate([p[name].errors for p in parts]),
-                       [x for p in parts for x in p[name].secs]) for name in parts[0]}
+                       [x for p in parts for x in p[name].secs], np.concatenate([p[name].aps for p in parts]))
+            for name in parts[0]}
 
 
 def evaluate(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
@@ -176,10 +200,11 @@ def pair_bins(ratios: list[float], gaps: list[int]) -> dict[str, list[str]]:
 
 
 def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str | None = None,
-           prfs: dict[str, np.ndarray] | None = None) -> dict:
+           prfs: dict[str, np.ndarray] | None = None, aps: dict[str, np.ndarray] | None = None) -> dict:
     """Per group (``groups[k]`` names pair k's), in first-seen order: its pair count and every method's AUC@5, with the
-    paired difference to ``reference`` [95 %] when it is among the methods, and with ``prfs`` (:func:`summarize`'s)
-    its mean precision, recall and F there. The JSON's ``bins`` and the tables'."""
+    paired difference to ``reference`` [95 %] when it is among the methods, with ``prfs`` (:func:`summarize`'s)
+    its mean precision, recall and F there, and with ``aps`` its mean average precision. The JSON's ``bins`` and the
+    tables'."""
     labels = np.asarray(groups, object)
     n_pairs = len(next(iter(errors.values())))
     if len(labels) != n_pairs:
@@ -190,7 +215,8 @@ def binned(errors: dict[str, np.ndarray], groups: list[str], reference: str | No
         row: dict = {"pairs": int(sel.sum())}
         for name, e in errors.items():
             e_g = np.asarray(e)[sel]
-            row[name] = {"auc5": 100 * pose_auc(e_g.ravel(), (5.0,))[0], **(mean_prf(prfs[name][sel]) if prfs else {})}
+            row[name] = {"auc5": 100 * pose_auc(e_g.ravel(), (5.0,))[0], **(mean_prf(prfs[name][sel]) if prfs else {}),
+                         **({"ap": mean_ap(aps[name][sel])} if aps else {})}
             if reference in errors and name != reference:
                 d, lo, hi = paired_auc_difference(e_g, np.asarray(errors[reference])[sel])
                 row[name]["vs_reference"] = {"auc5": d, "low": lo, "high": hi}
@@ -209,9 +235,16 @@ def prf_cell(m: dict) -> str:
     return f"{m['precision']:.1f} / {m['recall']:.1f}" if m["precision"] is not None else "-"
 
 
-def group_table(rows: dict, title: str = "AUC@5 per sequence (pairs)", cell: Callable[[dict], str] = auc_cell) -> str:
-    """:func:`binned`'s rows as a markdown table, one column per group, one row per method, each cell ``cell``'s."""
-    methods = [k for k in next(iter(rows.values())) if k != "pairs"]
+def ap_cell(m: dict) -> str:
+    """A method's mean average precision (%) in a group; '-' where it has no order or no pair a labelled inlier."""
+    return "-" if m["ap"] is None else f"{m['ap']:.1f}"
+
+
+def group_table(rows: dict, title: str = "AUC@5 per sequence (pairs)", cell: Callable[[dict], str] = auc_cell,
+                methods: list[str] | None = None) -> str:
+    """:func:`binned`'s rows as a markdown table, one column per group, one row per method (``methods``, else every
+    one), each cell ``cell``'s."""
+    methods = methods or [k for k in next(iter(rows.values())) if k != "pairs"]
     head = " | ".join(f"{g} ({r['pairs']})" for g, r in rows.items())
     lines = [f"| {title} | {head} |", "|---" * (len(rows) + 1) + "|"]
     lines += [f"| {name} | " + " | ".join(cell(r[name]) for r in rows.values()) + " |" for name in methods]
@@ -229,11 +262,11 @@ def per_sequence_table(errors: dict[str, np.ndarray], groups: list[str], referen
 
 def markdown_table(metrics: dict) -> str:
     """The results as a markdown table."""
-    lines = ["| method | P | R | F | AUC@5 | AUC@10 | AUC@20 | med. rot ° | med. trans ° | ms/pair |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| method | P | R | F | AP | AUC@5 | AUC@10 | AUC@20 | med. rot ° | med. trans ° | ms/pair |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, m in metrics.items():
-        p, r, f = ("-" if m[k] is None else f"{m[k]:.1f}" for k in ("precision", "recall", "f1"))
-        lines.append(f"| {name} | {p} | {r} | {f} | {m['auc5']:.1f} | "
+        p, r, f, ap = ("-" if m[k] is None else f"{m[k]:.1f}" for k in ("precision", "recall", "f1", "ap"))
+        lines.append(f"| {name} | {p} | {r} | {f} | {ap} | {m['auc5']:.1f} | "
                      f"{m['auc10']:.1f} | {m['auc20']:.1f} | {m['median_rot_deg']:.2f} | {m['median_trans_deg']:.2f} | "
                      f"{1000 * m['sec_per_pair']:.1f} |")
     return "\n".join(lines)
@@ -386,13 +419,16 @@ def main(args: argparse.Namespace) -> int:
     if len(folders) > 1:
         print("\n" + per_sequence_table(res["errors"], groups, args.reference))
     gaps = [g for f in folders.values() for g in f.gaps]
-    bins = {kind: binned(res["errors"], groups_of, args.reference, res["prfs"])
+    bins = {kind: binned(res["errors"], groups_of, args.reference, res["prfs"], res["aps"])
             for kind, groups_of in pair_bins(ratios, gaps).items()}
     for kind, title in (("inlier_ratio", "AUC@5 by putative inlier ratio (pairs)"), ("gap", "AUC@5 by frame gap (pairs)")):
         ordered = dict(sorted(bins[kind].items(), key=lambda kv: BIN_ORDER[kv[0]]))  # the hard pairs first
         print("\n" + group_table(ordered, title))
-        if kind == "inlier_ratio":  # how well each selection sorts the hard pairs' matches
+        if kind == "inlier_ratio":  # how well each selection sorts the hard pairs' matches, and each order ranks them
             print("\n" + group_table(ordered, "precision / recall (%) by putative inlier ratio", prf_cell))
+            if ranked := [name for name, m in res["metrics"].items() if m["ap"] is not None]:
+                print("\n" + group_table(ordered, "average precision (%) of the order by putative inlier ratio", ap_cell,
+                                          ranked))
     if failed:
         print(f"\nnot evaluated, failed: {'; '.join(f'{k}: {v}' for k, v in failed.items())}")
     if args.json:  # before the plot: the numbers are what a script reads
