@@ -267,6 +267,12 @@ def test_a_tools_options_may_come_between_its_positionals(capsys):
 @pytest.mark.parametrize("methods, said", [("ratio,magsak", "unknown method(s) ['magsak']; choose from nmnet, "),
                                            ("ratio,classic", "unknown method(s) ['classic'] (classic is the node's "
                                             "pose_estimator; here it is ratio+magsac); choose from nmnet, "),
+                                           # one name, two meanings: the node's magsac fits NM-Net's selection
+                                           ("magsac", "unknown method(s) ['magsac'] (magsac is the node's pose_estimator; "
+                                            "here it is nmnet+magsac) (MAGSAC++/RANSAC on all the matches, formerly "
+                                            "magsac, is now nn+magsac); choose from nmnet, "),
+                                           ("ransac", "unknown method(s) ['ransac'] (MAGSAC++/RANSAC on all the matches, "
+                                            "formerly ransac, is now nn+ransac); choose"),
                                            ("", "--methods names none; choose from nmnet, "),
                                            (" , ", "--methods names none; choose from nmnet, ")])
 def test_eval_methods_unknown_or_none_are_refused_before_any_work(methods, said, capsys):

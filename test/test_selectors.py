@@ -82,7 +82,7 @@ def test_a_bad_precision_is_refused_by_every_method():
 def test_pixel_threshold_reaches_the_robust_estimator(pairs):
     """A looser MAGSAC++ threshold keeps more matches on the same putative set (and the config key is honoured)."""
     c = to_correspondences(pairs[0])
-    tight, loose = (int(build("magsac", {"pose_threshold_px": t})(c).mask.sum()) for t in (0.1, 3.0))
+    tight, loose = (int(build("nn+magsac", {"pose_threshold_px": t})(c).mask.sum()) for t in (0.1, 3.0))
     print(f"MAGSAC++ inliers at 0.1 px: {tight}, at 3 px: {loose}")
     assert 8 <= tight < loose
 
@@ -464,7 +464,7 @@ def test_eval_warns_of_folder_arguments_that_share_frames_or_a_reference_it_did_
     assert main([*argv[:2], *argv[3:], "--pose-refine-iterations", "3", "--fallback-min-inliers", "30"]) == 0
     err = capsys.readouterr().err  # a value none of the methods reads is said; the default is not
     assert ("warning: --pose-refine-iterations 3 changes nothing: none of --methods reads it (these do: ratio+magsac, "
-            "ransac, magsac, nmnet+magsac, nmnet+ratio+magsac, oracle)") in err and "fallback" not in err
+            "nn+ransac, nn+magsac, nmnet+magsac, nmnet+ratio+magsac, oracle)") in err and "fallback" not in err
 
 
 def test_eval_cli_writes_the_json_contract(tmp_path, cache):
@@ -484,8 +484,9 @@ def test_eval_cli_writes_the_json_contract(tmp_path, cache):
     assert set(doc) == {"written_by", "methods", "bins"} and doc["written_by"].startswith("nmnet_ros")  # no reference run
     assert set(doc["bins"]) == {"inlier_ratio", "gap"} and set(doc["bins"]["gap"]) == {"1-2"}
     res = doc["methods"]
-    keys = {"precision", "recall", "f1", "auc5", "auc10", "auc20", "median_rot_deg", "median_trans_deg", "pairs", "sec_per_pair"}
+    keys = {"precision", "recall", "f1", "ap", "auc5", "auc10", "auc20", "median_rot_deg", "median_trans_deg", "pairs", "sec_per_pair"}
     assert set(res) == {"ratio", "nmnet", "oracle"} and all(set(v) == keys for v in res.values())
+    assert res["oracle"]["ap"] is None and 0 < res["ratio"]["ap"] <= 100 and 0 < res["nmnet"]["ap"] <= 100  # an order
     assert res["oracle"]["precision"] == 100.0 and res["nmnet"]["pairs"] == 7  # 4 gap-1 + 3 gap-2 pairs in 120-124
     (tmp_path / "cwd").mkdir()  # without --plot the plot goes beside --json (it went to ./eval_curves.png, each run's
     run = subprocess.run([*cmd[:8], "ratio", "--json", str(tmp_path / "b.json"), *cmd[-2:]],  # over the one before)

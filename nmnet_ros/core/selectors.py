@@ -2,7 +2,7 @@
 
 ``nmnet``/``nmnet-sp``: the network's scores, pose by the weighted eight-point on them;
 ``ratio``, ``gms``, ``lpm``: classic filters, pose by the eight-point on what they keep;
-``ransac``/``magsac``: robust essential-matrix fits on everything; ``ratio+magsac``: mutual NN +
+``nn+ransac``/``nn+magsac``: robust essential-matrix fits on every nearest-neighbour match; ``ratio+magsac``: mutual NN +
 ratio test then MAGSAC++ (the strongest classic pipeline); ``nmnet+magsac``: MAGSAC++ on the
 network's selection; ``nmnet+ratio+magsac``: MAGSAC++ on the matches both NM-Net and mutual NN +
 ratio test keep; both NM-Net MAGSAC++ fits take ``ratio+magsac``'s pose where they keep fewer than
@@ -294,8 +294,8 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         return lambda c: nmnet_select(model, c, cfg)
     table: dict[str, Callable[..., Selection]] = {
         "ratio": lambda c: _filtered(c, c.ratio < cfg["ratio"]),
-        "ransac": lambda c, seed=None: robust_fit(c, np.ones(len(c), bool), "ransac", at(seed)),
-        "magsac": lambda c, seed=None: robust_fit(c, np.ones(len(c), bool), "magsac", at(seed)),
+        "nn+ransac": lambda c, seed=None: robust_fit(c, np.ones(len(c), bool), "ransac", at(seed)),
+        "nn+magsac": lambda c, seed=None: robust_fit(c, np.ones(len(c), bool), "magsac", at(seed)),
         "ratio+magsac": lambda c, seed=None: robust_fit(c, classic_mask(c, cfg), "magsac", at(seed)),
         "ratio+poselib": lambda c, seed=None: robust_fit(c, classic_mask(c, cfg), "poselib", at(seed)),
         "ratio+prosac": lambda c, seed=None: prosac_fit(c, -c.ratio, at(seed)),
@@ -310,7 +310,7 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
     return table[name]
 
 
-ROBUST = ("ratio+magsac", "ratio+poselib", "ratio+prosac", "ransac", "magsac", "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac",
-          "oracle", "oracle+prosac")  # end in a seeded robust fit
+ROBUST = ("ratio+magsac", "ratio+poselib", "ratio+prosac", "nn+ransac", "nn+magsac", "nmnet+magsac", "nmnet+ratio+magsac",
+          "nmnet+prosac", "oracle", "oracle+prosac")  # end in a seeded robust fit
 NETWORK = ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac")  # run NM-Net
 GROUND_TRUTH = ("oracle", "oracle+prosac")  # read each match's ground-truth label: nmnet eval only

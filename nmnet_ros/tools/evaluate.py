@@ -357,16 +357,21 @@ def score_folders(args: argparse.Namespace, specs: list[str], labels: list[str],
     return scored, {k: v.error for k, v in results.items() if isinstance(v, fleet.Failed)}, interrupted
 
 
+# former method names: ``magsac`` was also the node's pose_estimator for MAGSAC++ on NM-Net's selection
+FORMER_METHODS = {"magsac": "nn+magsac", "ransac": "nn+ransac"}
+
+
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``nmnet eval``: 0, 1 when a folder among several failed (the others are scored), 130 when
     interrupted (nothing written)."""
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:  # none: an empty table and an empty plot, exit 0
-        node_names = "".join(f" ({m} is the node's pose_estimator; here it is {POSE_ESTIMATORS[m]})" for m in unknown
-                             if m in POSE_ESTIMATORS)
-        raise ValueError(f"{f'unknown method(s) {unknown}' if unknown else '--methods names none'}{node_names}; choose "
-                         f"from {', '.join(METHODS)}")
+        hints = [f"{m} is the node's pose_estimator; here it is {POSE_ESTIMATORS[m]}" for m in unknown if m in POSE_ESTIMATORS]
+        hints += [f"MAGSAC++/RANSAC on all the matches, formerly {m}, is now {FORMER_METHODS[m]}" for m in unknown
+                  if m in FORMER_METHODS]
+        raise ValueError(f"{f'unknown method(s) {unknown}' if unknown else '--methods names none'}"
+                         f"{''.join(f' ({h})' for h in hints)}; choose from {', '.join(METHODS)}")
     if args.max_iters < 1:
         raise ValueError(f"--max-iters must be >= 1, got {args.max_iters}")
     if args.seeds < 1:

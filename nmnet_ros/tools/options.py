@@ -291,7 +291,7 @@ def evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("seqs", nargs="*", metavar="SEQ[:a-b]", help=SEQS + "; several (or a quoted glob): scored in "
                    "parallel on Ray, one task per folder")
     add_fleet_options(p, "several folders")
-    p.add_argument("--methods", default="nmnet,nmnet-sp,ratio,ransac,magsac,ratio+magsac,nmnet+magsac,oracle",
+    p.add_argument("--methods", default="nmnet,nmnet-sp,ratio,nn+ransac,nn+magsac,ratio+magsac,nmnet+magsac,oracle",
                    help=f"comma-separated, from: {', '.join(METHODS)}")
     p.add_argument("--gaps", type=gaps, default="1-10", help="frame gaps, e.g. 1-10 or 1,3,5")
     p.add_argument("--stride", type=whole(1), default=1, help="use every n-th frame as a pair's first frame")
