@@ -576,6 +576,30 @@ def test_a_depth_topic_remapped_as_the_image_is_pointed_out_at_start_up(ros, tmp
         "depth images: remap its input to the camera's colour, mono or infrared stream" in node.output()
 
 
+def test_a_depth_encoding_is_said_where_the_topic_name_did_not_say_it():
+    from nmnet_ros.interface.dds import depth_encoding_note
+
+    assert depth_encoding_note("/camera/depth/image_rect_raw", "16UC1") is None  # said at start-up, by its name
+    assert depth_encoding_note("/cam/image_raw", "mono16") is None and depth_encoding_note("/cam/image_raw", "mono8") is None
+    assert depth_encoding_note("/cam/image_raw", "16uc1").startswith("frames on /cam/image_raw are 16UC1")
+
+
+def test_16uc1_frames_on_a_topic_not_named_depth_are_pointed_out_once(ros, tmp_path):
+    """A depth stream under another name (16UC1, read as 16-bit grey): only a topic named "depth" was said; the
+    frames' encoding tells too, once, and the node goes on."""
+    depth = np.full((48, 64), 1500, np.uint16)
+    with node_and_peer(ros, tmp_path, ["--ros-args", "-r", "image:=/camera/aligned/image_raw"],
+                       image_topic="/camera/aligned/image_raw") as (node, peer):
+        peer.wait_connected()
+        for k in range(3):
+            peer.pub_img.publish(image_msg(depth, 1.0 + k, encoding="16UC1"))
+        assert spin_until(peer.node, lambda: "are 16UC1" in node.output(), 10.0), node.output()
+        assert spin_until(peer.node, lambda: node.output().count("are 16UC1") == 1 and node.alive(), 2.0)
+    assert ("frames on /camera/aligned/image_raw are 16UC1, what depth cameras publish (a 16-bit grey camera says "
+            "mono16); if so: nmnet_node detects features in camera frames, not in depth images") in node.output()
+    assert node.output().count("are 16UC1") == 1 and "looks like a depth topic" not in node.output()
+
+
 def test_rectified_frames_take_p_and_a_rect_topic_with_distortion_is_pointed_out(ros, tmp_path):
     """KITTI's frames are rectified; given a camera_info whose K and D describe a raw, distorted camera and whose
     P is the rectified one, rectified:=true (set at run time) gives the right poses."""

@@ -85,6 +85,14 @@ DEPTH_ADVICE = ("nmnet_node detects features in camera frames, not in depth imag
                 "colour, mono or infrared stream")
 
 
+def depth_encoding_note(topic: str, encoding: str) -> str | None:
+    """What to say of frames on ``topic`` in ``encoding`` that look like depth: 16UC1 is what depth cameras publish
+    (in millimetres), read here as 16-bit grey; None for another encoding, or where the topic's name said so already."""
+    if encoding.lower() != "16uc1" or is_depth(topic):
+        return None
+    return f"frames on {topic} are 16UC1, what depth cameras publish (a 16-bit grey camera says mono16); if so: {DEPTH_ADVICE}"
+
+
 def is_depth(topic: str) -> bool:
     """Whether an image topic's name says it carries depth (/camera/depth/image_rect_raw, /aligned_depth_to_color/)."""
     return "depth" in re.split(r"[^a-z0-9]+", topic.lower())

@@ -46,6 +46,7 @@ from ..interface.caminfo import camera_from_info
 from ..interface.dds import (
     DEPTH_ADVICE,
     LARGE_FRAME_BYTES,
+    depth_encoding_note,
     follow_reliability,
     is_depth,
     large_frames_advice,
@@ -184,6 +185,7 @@ class NMNetNode(Node):
         self._received_before = 0
         self._large_hint = False
         self._frameless_said = False  # frames whose header names no frame: said once
+        self._depth_said = False  # 16UC1 frames (a depth stream?): said once
         # a topic named like image_proc's rectified output: say once if its camera_info is the distorted raw one
         self._rect_hint_due = bool(re.search(r"(^|/|_)rect", self._image_sub.topic_name))
         if is_depth(self._image_sub.topic_name):  # an RGB-D camera's depth, remapped by mistake: 16UC1 reads as mono
@@ -373,6 +375,10 @@ class NMNetNode(Node):
             self._large_hint = True  # said once: with a large-frames profile on the camera's side they all arrive
             self.get_logger().info(f"frames of {len(msg.data) / 1e6:.1f} MB on a best-effort subscription: "
                                    f"{large_frames_advice()}")
+        if not self._depth_said and hasattr(msg, "encoding"):  # an Image, not a CompressedImage
+            self._depth_said = True  # the stream's encoding does not change: the first frame tells
+            if note := depth_encoding_note(self._image_sub.topic_name, msg.encoding):
+                self.get_logger().warning(note)
         if not msg.header.frame_id and not self._frameless_said:
             self._frameless_said = True  # a driver setting: said once, not a fault of each frame
             self.get_logger().warning(f"frames on {self._image_sub.topic_name} name no frame (empty header.frame_id): "
