@@ -72,7 +72,8 @@ METHOD_NAMES = {"nmnet+ratio+magsac": "NM-Net + ratio + MAGSAC++", "ratio+magsac
                 "ratio+poselib": "classic with PoseLib: ratio + PoseLib",
                 "ratio+prosac": "PoseLib PROSAC on mutual matches of ratio < 0.9 in ratio order",
                 "nmnet+prosac": "NM-Net's order + PoseLib PROSAC on mutual matches of ratio < 0.9",
-                "oracle+prosac": "the true inliers' order + PoseLib PROSAC on mutual matches of ratio < 0.9"}
+                "oracle+prosac": "the true inliers' order + PoseLib PROSAC on mutual matches of ratio < 0.9",
+                "oracle-pool": "the true inliers among mutual matches of ratio < 0.9 + MAGSAC++"}
 
 
 def method_label(method: str) -> str:
@@ -309,7 +310,8 @@ EXPERIMENTS: dict[str, Experiment] = {
     "hard-validation": Experiment(
         "the hard validation set: the validation scenes at frame gaps up to 30 and views up to 60 degrees apart",
         ("eval", *VALIDATION, "--gaps", "1-30", "--max-view-angle", "60", "--methods",
-         "nmnet,ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,ratio+poselib,ratio+prosac,nmnet+prosac,oracle+prosac,oracle",
+         "nmnet,ratio+magsac,nmnet+magsac,nmnet+ratio+magsac,ratio+poselib,ratio+prosac,nmnet+prosac,oracle+prosac,"
+         "oracle-pool,oracle",
          "--seeds", "3",
          "--nmnet-precision", "float32",
          "--json", "{out}", "--plots", "{tmp}"), None, needs_data=True),

@@ -1106,7 +1106,7 @@ def test_replay_options_that_set_node_parameters_are_checked_as_the_node_checks_
     assert summaries["0.5"]["auc5"] == summaries["0"]["auc5"]  # the same poses
 
 
-@pytest.mark.parametrize("name", ["oracle", "oracle+prosac"])
+@pytest.mark.parametrize("name", ["oracle", "oracle-pool", "oracle+prosac"])
 def test_the_oracle_selectors_are_refused_by_replay_as_they_need_ground_truth_labels(raw_bag, tmp_path, name):
     """On a bag's frames the oracles have no labels: the oracle selected nothing and reported every pose as 180
     degrees off."""

@@ -802,6 +802,20 @@ def test_oracle_prosac_samples_the_labelled_inliers_first(pairs):
     assert np.array_equal(build("oracle+prosac")(c, seed=0).mask, build("ratio+prosac")(c, seed=0).mask)
 
 
+def test_oracle_pool_fits_only_the_labelled_inliers_inside_the_defaults_pool(pairs):
+    """oracle-pool bounds any cut inside the default's pool (mutual, ratio < 0.9): the labelled inliers outside it,
+    which the full oracle also fits, are not given to it."""
+    from nmnet_ros.core.selectors import prosac_pool
+
+    c = to_correspondences(pairs[0])
+    inside = build("oracle-pool")(c, seed=0)
+    assert inside.mask.any() and not np.any(inside.mask & ~(c.labels & prosac_pool(c)))
+    assert np.array_equal(inside.candidates, c.labels & prosac_pool(c))
+    assert np.any(build("oracle")(c, seed=0).candidates & ~prosac_pool(c))  # the full oracle's reach beyond it
+    c.mutual = np.zeros(len(c), bool)  # an empty pool: nothing to fit
+    assert build("oracle-pool")(c, seed=0).pose is None
+
+
 def test_the_settings_say_which_selectors_read_them(pairs):
     """``Setting.methods`` (what the inert-setting warnings go by) mirrors the selectors: a method it names gives
     another mask or pose when the setting changes, on some pair; one it leaves out gives the same everywhere."""

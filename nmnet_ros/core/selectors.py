@@ -9,7 +9,8 @@ ratio test keep; both NM-Net MAGSAC++ fits take ``ratio+magsac``'s pose where th
 ``fallback_min_inliers`` matches; ``ratio+poselib``: the classic pre-filter then PoseLib; ``ratio+prosac``: PoseLib
 sampling a wider pool in the ratio test's order (PROSAC, no network); ``nmnet+prosac``: the same in NM-Net's order,
 the front end's default (level with ``ratio+prosac``, see docs/evaluation.md); ``oracle``: ground-truth inliers +
-MAGSAC++ (an upper bound: the labels are chosen by the true pose); ``oracle+prosac``: the default's fit
+MAGSAC++ (an upper bound: the labels are chosen by the true pose); ``oracle-pool``: the same on the labelled inliers
+of the default's pool only (the ceiling of any cut inside it); ``oracle+prosac``: the default's fit
 in the ground truth's order, labelled inliers first (the ceiling of any learned order).
 """
 
@@ -122,11 +123,16 @@ def classic_mask(c: Correspondences, cfg: dict = DEFAULT_CONFIG) -> np.ndarray:
     return c.mutual & (c.ratio < cfg["ratio"])
 
 
+def prosac_pool(c: Correspondences) -> np.ndarray:
+    """The default's pool: the mutual matches of ratio < ``PROSAC_POOL_RATIO`` (a boolean mask)."""
+    return c.mutual & (c.ratio < PROSAC_POOL_RATIO)
+
+
 def prosac_fit(c: Correspondences, order: np.ndarray, cfg: dict) -> Selection:
-    """PoseLib with PROSAC over the mutual matches of ratio < ``PROSAC_POOL_RATIO``, sampled in ``order`` (higher
+    """PoseLib with PROSAC over :func:`prosac_pool`, sampled in ``order`` (higher
     first): the samples come from the best-ranked matches first, while the consensus is counted over a pool wider
     than the classic pre-filter's, where the inliers of a hard pair (few, ambiguous) still are."""
-    pool = np.flatnonzero(c.mutual & (c.ratio < PROSAC_POOL_RATIO))
+    pool = np.flatnonzero(prosac_pool(c))
     return robust_fit(c, pool[np.argsort(-order[pool], kind="stable")], "poselib", cfg, prosac=True)
 
 
@@ -302,6 +308,7 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
         "gms": lambda c: _filtered(c, gms_mask(c)),
         "lpm": lambda c: _filtered(c, lpm_mask(c)),
         "oracle": lambda c, seed=None: robust_fit(c, _true_labels(c), "magsac", at(seed)),
+        "oracle-pool": lambda c, seed=None: robust_fit(c, _true_labels(c) & prosac_pool(c), "magsac", at(seed)),
         # labelled inliers first, each group in the ratio's order
         "oracle+prosac": lambda c, seed=None: prosac_fit(c, 2.0 * _true_labels(c) - c.ratio, at(seed)),
     }
@@ -311,6 +318,6 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
 
 
 ROBUST = ("ratio+magsac", "ratio+poselib", "ratio+prosac", "nn+ransac", "nn+magsac", "nmnet+magsac", "nmnet+ratio+magsac",
-          "nmnet+prosac", "oracle", "oracle+prosac")  # end in a seeded robust fit
+          "nmnet+prosac", "oracle", "oracle-pool", "oracle+prosac")  # end in a seeded robust fit
 NETWORK = ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac")  # run NM-Net
-GROUND_TRUTH = ("oracle", "oracle+prosac")  # read each match's ground-truth label: nmnet eval only
+GROUND_TRUTH = ("oracle", "oracle-pool", "oracle+prosac")  # read each match's ground-truth label: nmnet eval only

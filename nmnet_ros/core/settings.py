@@ -18,7 +18,7 @@ DETECTOR_NAMES = ("hessian-affine", "hessian-affine-fast", "sift")
 PRECISION_NAMES = ("auto", "float32", "bfloat16")  # auto = bfloat16 where the CPU has it natively
 # the correspondence selectors (core/selectors.py), as nmnet eval names them
 METHODS = ("nmnet", "nmnet-sp", "ratio", "ratio+magsac", "ratio+poselib", "ratio+prosac", "nn+ransac", "nn+magsac", "gms", "lpm",
-           "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac", "oracle", "oracle+prosac")
+           "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac", "oracle", "oracle-pool", "oracle+prosac")
 POSE_ESTIMATORS = {  # the node's pose_estimator names and the selector (nmnet eval's method) each runs
     "prosac": "nmnet+prosac", "ratio_magsac": "nmnet+ratio+magsac", "magsac": "nmnet+magsac", "weighted8": "nmnet",
     "classic": "ratio+magsac"}
@@ -61,7 +61,7 @@ class Setting:
 FEATURES = ("replay", "eval", "train", "neighbors")  # the tools that detect features
 SELECTING = ("replay", "eval")  # the tools that run NM-Net and a pose estimator as the node does
 NETWORK_CUT = ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac")  # keep what NM-Net scores above its cut
-MAGSAC_FITS = ("ratio+magsac", "nn+ransac", "nn+magsac", "nmnet+magsac", "nmnet+ratio+magsac", "oracle")  # OpenCV's fits
+MAGSAC_FITS = ("ratio+magsac", "nn+ransac", "nn+magsac", "nmnet+magsac", "nmnet+ratio+magsac", "oracle", "oracle-pool")  # OpenCV's fits
 
 SETTINGS: tuple[Setting, ...] = (
     Setting("weights", "", "NM-Net weights file; empty = the weights shipped with the package", tools=SELECTING),
