@@ -464,7 +464,7 @@ def test_eval_warns_of_folder_arguments_that_share_frames_or_a_reference_it_did_
     assert main([*argv[:2], *argv[3:], "--pose-refine-iterations", "3", "--fallback-min-inliers", "30"]) == 0
     err = capsys.readouterr().err  # a value none of the methods reads is said; the default is not
     assert ("warning: --pose-refine-iterations 3 changes nothing: none of --methods reads it (these do: ratio+magsac, "
-            "nn+ransac, nn+magsac, nmnet+magsac, nmnet+ratio+magsac, oracle)") in err and "fallback" not in err
+            "nn+ransac, nn+magsac, nmnet+magsac, nmnet+ratio+magsac, oracle, oracle-pool)") in err and "fallback" not in err
 
 
 def test_eval_cli_writes_the_json_contract(tmp_path, cache):
