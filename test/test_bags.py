@@ -964,6 +964,29 @@ def test_a_replay_keeps_no_frames_matches_and_sums_up_the_tracks_it_wrote(raw_ba
     assert len(pickle.dumps(run)) < 5000 * n
 
 
+def test_a_bags_16uc1_frames_on_a_topic_not_named_depth_are_named_as_maybe_depth(raw_bag, tmp_path):
+    """16UC1 is what depth cameras publish: frames in it on a camera-like topic are read as 16-bit grey, and the
+    replay says once that they may be depth and how to choose the camera's stream (as the node does). mono16 is not."""
+    from dataclasses import replace
+
+    def as_16uc1(topic, msg):
+        if not hasattr(msg, "encoding"):
+            return msg
+        grey = np.frombuffer(msg.data, np.uint8).astype(np.uint16) * 16
+        return replace(msg, encoding="16UC1", step=2 * msg.width, data=grey.view(np.uint8))
+
+    rewrite_bag(raw_bag, tmp_path / "d16", as_16uc1)
+    reader = BagReader(tmp_path / "d16")
+    frames = list(read_frames(reader)[0])
+    assert len(frames) == 6 and all(f.image is not None and f.image.dtype == np.uint16 for f in frames)
+    said = [w for w in reader.warnings if "16UC1" in w]
+    assert said == ["frames on /camera/image_raw are 16UC1, what depth cameras publish (a 16-bit grey camera says "
+                    "mono16); if so: the front end detects features in camera frames, not in depth images: choose the "
+                    "camera's colour, mono or infrared stream with --image-topic"], reader.warnings
+    plain = BagReader(raw_bag)
+    assert len(list(read_frames(plain)[0])) == 6 and not [w for w in plain.warnings if "16UC1" in w]
+
+
 def test_a_bag_without_ground_truth_gets_the_match_picture_and_no_empty_plots(raw_bag, tmp_path):
     bag = tmp_path / "no_gt"
     rewrite_bag(raw_bag, bag, lambda topic, msg: None if topic == "/ground_truth/pose" else msg)

@@ -85,12 +85,13 @@ DEPTH_ADVICE = ("nmnet_node detects features in camera frames, not in depth imag
                 "colour, mono or infrared stream")
 
 
-def depth_encoding_note(topic: str, encoding: str) -> str | None:
+def depth_encoding_note(topic: str, encoding: str, advice: str = DEPTH_ADVICE) -> str | None:
     """What to say of frames on ``topic`` in ``encoding`` that look like depth: 16UC1 is what depth cameras publish
-    (in millimetres), read here as 16-bit grey; None for another encoding, or where the topic's name said so already."""
+    (in millimetres), read here as 16-bit grey; None for another encoding, or where the topic's name said so already.
+    ``advice``: what to do if they are depth (the node's remap by default)."""
     if encoding.lower() != "16uc1" or is_depth(topic):
         return None
-    return f"frames on {topic} are 16UC1, what depth cameras publish (a 16-bit grey camera says mono16); if so: {DEPTH_ADVICE}"
+    return f"frames on {topic} are 16UC1, what depth cameras publish (a 16-bit grey camera says mono16); if so: {advice}"
 
 
 def is_depth(topic: str) -> bool:

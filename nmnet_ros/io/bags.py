@@ -23,10 +23,13 @@ from rosbags.typesys.store import Typestore
 
 from ..core.geometry import Camera, CameraError
 from ..interface.caminfo import camera_from_info
-from ..interface.dds import is_depth
+from ..interface.dds import depth_encoding_note, is_depth
 from ..interface.imgconv import IMAGE_TYPES, MAX_PIXELS, ImageError, decode_message, pixel_cap
 from ..interface.posemsg import stamp_seconds
 from .datasets import BAG_SUFFIXES, is_sequence_folder
+
+DEPTH_ADVICE = ("the front end detects features in camera frames, not in depth images: choose the camera's colour, mono or "
+                "infrared stream with --image-topic")
 
 
 class BagError(ValueError):
@@ -517,6 +520,8 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
                 img, err = decode_message(m.msg, cap), None
             except ImageError as e:
                 img, err = None, str(e)
+            if watch.inside == 1 and (note := depth_encoding_note(img_t, getattr(m.msg, "encoding", ""), DEPTH_ADVICE)):
+                reader.warnings.append(note)  # once, on the first frame read
             pending.append((m.log_time_ns / 1e9 if recorded else msg_time(m.msg), img, err, m.msg.header.frame_id))
             # camera_info shares the image stamp and may come just after it
             while len(pending) > 1:
