@@ -321,3 +321,4 @@ ROBUST = ("ratio+magsac", "ratio+poselib", "ratio+prosac", "nn+ransac", "nn+mags
           "nmnet+prosac", "oracle", "oracle-pool", "oracle+prosac")  # end in a seeded robust fit
 NETWORK = ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac")  # run NM-Net
 GROUND_TRUTH = ("oracle", "oracle-pool", "oracle+prosac")  # read each match's ground-truth label: nmnet eval only
+RATIO_ORDERED = ("ratio", "ratio+prosac")  # rank the matches by the distance ratio (lower first); NM-Net's by their scores

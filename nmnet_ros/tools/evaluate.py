@@ -26,7 +26,7 @@ from ..core.geometry import pose_auc, pose_error_deg
 from ..core.metrics import average_precision, prf
 from ..core.model import NEIGHBORS, load_model
 from ..core.model_fast import precision_note
-from ..core.selectors import METHODS, NETWORK, ROBUST, Correspondences, Selection, build
+from ..core.selectors import METHODS, NETWORK, RATIO_ORDERED, ROBUST, Correspondences, Selection, build
 from ..core.settings import POSE_ESTIMATORS, unread
 from ..io.cache import FeatureCache, default_cache_dir
 from ..io.outputs import output_file, save_figure, write_json
@@ -43,10 +43,6 @@ class Runs:
     errors: np.ndarray  # (pairs, seeds, 2): every run's rotation and translation error, degrees
     secs: list[float]  # each pair's time of one full run (selection + pose)
     aps: np.ndarray  # (pairs,): the average precision (%) of the method's order; NaN without an order or a labelled inlier
-
-
-# the methods that rank the matches by the descriptor distance ratio (lower first); NM-Net's rank by their scores
-RATIO_ORDERED = ("ratio", "ratio+prosac")
 
 
 def ranking(name: str, sel: Selection, c: Correspondences) -> np.ndarray | None:
