@@ -28,8 +28,8 @@ from ..interface.imgconv import IMAGE_TYPES, MAX_PIXELS, ImageError, decode_mess
 from ..interface.posemsg import stamp_seconds
 from .datasets import BAG_SUFFIXES, is_sequence_folder
 
-DEPTH_ADVICE = ("the front end detects features in camera frames, not in depth images: choose the camera's colour, mono or "
-                "infrared stream with --image-topic")
+BAG_DEPTH_ADVICE = ("the front end detects features in camera frames, not in depth images: choose the camera's colour, mono or "
+                    "infrared stream with --image-topic")
 
 
 class BagError(ValueError):
@@ -520,7 +520,7 @@ def read_frames(reader: BagReader, image_topic: str | None = None, info_topic: s
                 img, err = decode_message(m.msg, cap), None
             except ImageError as e:
                 img, err = None, str(e)
-            if watch.inside == 1 and (note := depth_encoding_note(img_t, getattr(m.msg, "encoding", ""), DEPTH_ADVICE)):
+            if watch.inside == 1 and (note := depth_encoding_note(img_t, getattr(m.msg, "encoding", ""), BAG_DEPTH_ADVICE)):
                 reader.warnings.append(note)  # once, on the first frame read
             pending.append((m.log_time_ns / 1e9 if recorded else msg_time(m.msg), img, err, m.msg.header.frame_id))
             # camera_info shares the image stamp and may come just after it
