@@ -964,17 +964,19 @@ def test_a_replay_keeps_no_frames_matches_and_sums_up_the_tracks_it_wrote(raw_ba
     assert len(pickle.dumps(run)) < 5000 * n
 
 
+def as_16uc1(topic: str, msg):
+    """A mono8 Image as a depth camera's 16UC1 (the grey values x 16); other messages as they are."""
+    from dataclasses import replace
+
+    if not hasattr(msg, "encoding"):
+        return msg
+    grey = np.frombuffer(msg.data, np.uint8).astype(np.uint16) * 16
+    return replace(msg, encoding="16UC1", step=2 * msg.width, data=grey.view(np.uint8))
+
+
 def test_a_bags_16uc1_frames_on_a_topic_not_named_depth_are_named_as_maybe_depth(raw_bag, tmp_path):
     """16UC1 is what depth cameras publish: frames in it on a camera-like topic are read as 16-bit grey, and the
     replay says once that they may be depth and how to choose the camera's stream (as the node does). mono16 is not."""
-    from dataclasses import replace
-
-    def as_16uc1(topic, msg):
-        if not hasattr(msg, "encoding"):
-            return msg
-        grey = np.frombuffer(msg.data, np.uint8).astype(np.uint16) * 16
-        return replace(msg, encoding="16UC1", step=2 * msg.width, data=grey.view(np.uint8))
-
     rewrite_bag(raw_bag, tmp_path / "d16", as_16uc1)
     reader = BagReader(tmp_path / "d16")
     frames = list(read_frames(reader)[0])
@@ -985,6 +987,25 @@ def test_a_bags_16uc1_frames_on_a_topic_not_named_depth_are_named_as_maybe_depth
                     "camera's colour, mono or infrared stream with --image-topic"], reader.warnings
     plain = BagReader(raw_bag)
     assert len(list(read_frames(plain)[0])) == 6 and not [w for w in plain.warnings if "16UC1" in w]
+
+
+def test_a_replay_says_the_recordings_warnings_before_its_first_frame_not_after_the_pass(raw_bag, tmp_path):
+    """On an hour-long bag the topic it took, or frames that look like depth, must be said at once, not at the end.
+    The warnings found at the end (ground truth missing for some frames) still come at the end, each once."""
+    from nmnet_ros.core.pipeline import Frontend
+    from nmnet_ros.tools.replay import process_bag
+
+    rewrite_bag(raw_bag, tmp_path / "d16", as_16uc1)
+    fe = Frontend(None, {})
+    processed, said = [], []
+    real = fe.process
+    fe.process = lambda *a: processed.append(1) or real(*a)  # the real front end, counted
+    run, n, _ = process_bag(BagReader(tmp_path / "d16"), None, fe, progress=False,
+                            log=lambda line: said.append((len(processed), line)))
+    assert n == 6 and len(processed) == 6
+    warned = [(k, line) for k, line in said if line.startswith("warning: ")]
+    assert [k for k, line in warned if "are 16UC1" in line] == [0], said  # once, before the first frame was processed
+    assert run.recording_warnings == [line.removeprefix("warning: ") for _, line in warned]
 
 
 def test_a_bag_without_ground_truth_gets_the_match_picture_and_no_empty_plots(raw_bag, tmp_path):

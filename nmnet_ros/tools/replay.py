@@ -131,10 +131,19 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
 
         bar = tqdm(desc=f"replay {reader.path.name}", unit="frame", file=sys.stderr,
                    disable=None)  # off when stderr is no terminal (logs, CI)
+
+    def said(*more: str | None) -> None:  # the recording's warnings not said yet (topic choice, 16UC1, damage, ...)
+        for w in [*reader.new_warnings(), *more]:
+            if w:
+                log(f"warning: {w}")
+                run.recording_warnings.append(w)
+
     t0 = time.perf_counter()
     try:
         for f in frames:
             n_frames += 1
+            if n_frames == 1:
+                said()  # now, not after an hour of a long bag: what was chosen and what the first frame looks like
             if bar is not None:
                 bar.update(1)
             T = None if look is None else look.at(f.stamp)  # every frame read: the lookup follows them in order
@@ -159,10 +168,7 @@ def process_bag(reader: BagReader, out: McapOutput | None, fe: Frontend, truth: 
         notes.close()
     stamps = [s.stamp for s in run.steps]
     uncovered = None if look is None else truth_uncovered(stamps, [s.T is not None for s in run.steps], look.per_frame)
-    for w in [*reader.new_warnings(), truth_missed(truth, stamps), uncovered]:
-        if w:
-            log(f"warning: {w}")
-            run.recording_warnings.append(w)
+    said(truth_missed(truth, stamps), uncovered)
     return run, n_frames, overlay
 
 
