@@ -761,7 +761,8 @@ def test_poselib_methods_fit_their_pools_and_get_the_pose(pairs):
         pool = c.mutual & (c.ratio < PROSAC_POOL_RATIO)
         for sel in (b, r):
             assert np.array_equal(sel.candidates, pool) and not np.any(sel.mask & ~pool)
-        assert b.scores is not None and r.scores is None
+        assert b.scores is not None and np.array_equal(r.scores, 1 - c.ratio)  # each its order: NM-Net's, the ratio's
+        assert np.array_equal(build("ratio")(c).scores, 1 - c.ratio)
         assert np.array_equal(unpolished(c, seed=0).pose.R, r.pose.R)
         for name, sel in zip(names, (a, b, r), strict=True):
             errs[name].append(max(pose_error_deg(sel.pose, p.R, p.t)))

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 
 import cv2
@@ -82,7 +82,7 @@ class Selection:
     """A selector's output: which matches it keeps, optional scores, and the pose."""
 
     mask: np.ndarray  # (M,) bool
-    scores: np.ndarray | None
+    scores: np.ndarray | None  # (M,) the order it ranks the matches in, higher first: NM-Net's probabilities, 1 - ratio
     pose: PoseEstimate | None
     candidates: np.ndarray | None = None  # (M,) bool: what a robust fit was given (None: the mask itself)
 
@@ -134,6 +134,17 @@ def prosac_fit(c: Correspondences, order: np.ndarray, cfg: dict) -> Selection:
     than the classic pre-filter's, where the inliers of a hard pair (few, ambiguous) still are."""
     pool = np.flatnonzero(prosac_pool(c))
     return robust_fit(c, pool[np.argsort(-order[pool], kind="stable")], "poselib", cfg, prosac=True)
+
+
+def ratio_scores(c: Correspondences) -> np.ndarray:
+    """The ratio test's order as scores in [0, 1], higher first: 1 - the distance ratio."""
+    return 1.0 - c.ratio
+
+
+def ratio_prosac_select(c: Correspondences, cfg: dict) -> Selection:
+    """``prosac_fit`` in the ratio test's order (no network); the order is its scores."""
+    scores = ratio_scores(c)
+    return replace(prosac_fit(c, scores, cfg), scores=scores)
 
 
 def nmnet_prosac_select(scored: tuple[np.ndarray, np.ndarray, np.ndarray], c: Correspondences, cfg: dict) -> Selection:
@@ -299,12 +310,12 @@ def build(name: str, config: dict | None = None, weights: dict[str, str] | None 
             return lambda c, seed=None: fit(scored(c), c, at(seed))
         return lambda c: nmnet_select(model, c, cfg)
     table: dict[str, Callable[..., Selection]] = {
-        "ratio": lambda c: _filtered(c, c.ratio < cfg["ratio"]),
+        "ratio": lambda c: replace(_filtered(c, c.ratio < cfg["ratio"]), scores=ratio_scores(c)),
         "nn+ransac": lambda c, seed=None: robust_fit(c, np.ones(len(c), bool), "ransac", at(seed)),
         "nn+magsac": lambda c, seed=None: robust_fit(c, np.ones(len(c), bool), "magsac", at(seed)),
         "ratio+magsac": lambda c, seed=None: robust_fit(c, classic_mask(c, cfg), "magsac", at(seed)),
         "ratio+poselib": lambda c, seed=None: robust_fit(c, classic_mask(c, cfg), "poselib", at(seed)),
-        "ratio+prosac": lambda c, seed=None: prosac_fit(c, -c.ratio, at(seed)),
+        "ratio+prosac": lambda c, seed=None: ratio_prosac_select(c, at(seed)),
         "gms": lambda c: _filtered(c, gms_mask(c)),
         "lpm": lambda c: _filtered(c, lpm_mask(c)),
         "oracle": lambda c, seed=None: robust_fit(c, _true_labels(c), "magsac", at(seed)),
@@ -321,4 +332,3 @@ ROBUST = ("ratio+magsac", "ratio+poselib", "ratio+prosac", "nn+ransac", "nn+mags
           "nmnet+prosac", "oracle", "oracle-pool", "oracle+prosac")  # end in a seeded robust fit
 NETWORK = ("nmnet", "nmnet-sp", "nmnet+magsac", "nmnet+ratio+magsac", "nmnet+prosac")  # run NM-Net
 GROUND_TRUTH = ("oracle", "oracle-pool", "oracle+prosac")  # read each match's ground-truth label: nmnet eval only
-RATIO_ORDERED = ("ratio", "ratio+prosac")  # rank the matches by the distance ratio (lower first); NM-Net's by their scores

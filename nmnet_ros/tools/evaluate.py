@@ -26,7 +26,7 @@ from ..core.geometry import pose_auc, pose_error_deg
 from ..core.metrics import average_precision, prf
 from ..core.model import NEIGHBORS, load_model
 from ..core.model_fast import precision_note
-from ..core.selectors import METHODS, NETWORK, RATIO_ORDERED, ROBUST, Correspondences, Selection, build
+from ..core.selectors import METHODS, NETWORK, ROBUST, build
 from ..core.settings import POSE_ESTIMATORS, unread
 from ..io.cache import FeatureCache, default_cache_dir
 from ..io.outputs import output_file, save_figure, write_json
@@ -43,13 +43,6 @@ class Runs:
     errors: np.ndarray  # (pairs, seeds, 2): every run's rotation and translation error, degrees
     secs: list[float]  # each pair's time of one full run (selection + pose)
     aps: np.ndarray  # (pairs,): the average precision (%) of the method's order; NaN without an order or a labelled inlier
-
-
-def ranking(name: str, sel: Selection, c: Correspondences) -> np.ndarray | None:
-    """The order a method ranks the putative matches in (higher first), or None: NM-Net's scores, the ratio's."""
-    if sel.scores is not None:
-        return sel.scores
-    return -c.ratio if name in RATIO_ORDERED else None
 
 
 def score(pairs: list[PairData], methods: list[str], weights: dict[str, str] | None = None,
@@ -73,7 +66,7 @@ def score(pairs: list[PairData], methods: list[str], weights: dict[str, str] | N
             scored = [prf(sel.mask, p.labels) if p.labels.any() else dict.fromkeys(PRF, np.nan) for sel in sels]
             prfs.append([[m[k] for k in PRF] for m in scored] * (seeds // runs))
             errs.append([pose_error_deg(sel.pose, p.R, p.t) for sel in sels] * (seeds // runs))
-            order = ranking(name, sels[0], c)  # the seeds share it (NM-Net's pass, the ratio)
+            order = sels[0].scores  # the method's order (NM-Net's, the ratio's); the seeds share it
             aps.append(np.nan if order is None else average_precision(order, p.labels))
         out[name] = Runs(np.array(prfs, np.float64).reshape(len(pairs), seeds, 3),
                          np.array(errs, np.float64).reshape(len(pairs), seeds, 2), secs, np.array(aps, np.float64))
