@@ -964,20 +964,22 @@ def test_a_replay_keeps_no_frames_matches_and_sums_up_the_tracks_it_wrote(raw_ba
     assert len(pickle.dumps(run)) < 5000 * n
 
 
-def as_16uc1(topic: str, msg):
-    """A mono8 Image as a depth camera's 16UC1 (the grey values x 16); other messages as they are."""
+def as_16bit(encoding: str = "16UC1"):
+    """A bag edit: each mono8 Image as 16-bit frames in ``encoding`` (the grey values x 16); other messages as they are."""
     from dataclasses import replace
 
-    if not hasattr(msg, "encoding"):
-        return msg
-    grey = np.frombuffer(msg.data, np.uint8).astype(np.uint16) * 16
-    return replace(msg, encoding="16UC1", step=2 * msg.width, data=grey.view(np.uint8))
+    def edit(topic: str, msg):
+        if not hasattr(msg, "encoding"):
+            return msg
+        grey = np.frombuffer(msg.data, np.uint8).astype(np.uint16) * 16
+        return replace(msg, encoding=encoding, step=2 * msg.width, data=grey.view(np.uint8))
+    return edit
 
 
 def test_a_bags_16uc1_frames_on_a_topic_not_named_depth_are_named_as_maybe_depth(raw_bag, tmp_path):
     """16UC1 is what depth cameras publish: frames in it on a camera-like topic are read as 16-bit grey, and the
     replay says once that they may be depth and how to choose the camera's stream (as the node does). mono16 is not."""
-    rewrite_bag(raw_bag, tmp_path / "d16", as_16uc1)
+    rewrite_bag(raw_bag, tmp_path / "d16", as_16bit())
     reader = BagReader(tmp_path / "d16")
     frames = list(read_frames(reader)[0])
     assert len(frames) == 6 and all(f.image is not None and f.image.dtype == np.uint16 for f in frames)
@@ -985,8 +987,10 @@ def test_a_bags_16uc1_frames_on_a_topic_not_named_depth_are_named_as_maybe_depth
     assert said == ["frames on /camera/image_raw are 16UC1, what depth cameras publish (a 16-bit grey camera says "
                     "mono16); if so: the front end detects features in camera frames, not in depth images: choose the "
                     "camera's colour, mono or infrared stream with --image-topic"], reader.warnings
-    plain = BagReader(raw_bag)
-    assert len(list(read_frames(plain)[0])) == 6 and not [w for w in plain.warnings if "16UC1" in w]
+    rewrite_bag(raw_bag, tmp_path / "m16", as_16bit("mono16"))  # a 16-bit grey camera: the same pixels, nothing said
+    grey = BagReader(tmp_path / "m16")
+    assert all(np.array_equal(g.image, f.image) for g, f in zip(read_frames(grey)[0], frames, strict=True))
+    assert not [w for w in grey.warnings if "16UC1" in w], grey.warnings
 
 
 def test_a_replay_says_the_recordings_warnings_before_its_first_frame_not_after_the_pass(raw_bag, tmp_path):
@@ -995,7 +999,7 @@ def test_a_replay_says_the_recordings_warnings_before_its_first_frame_not_after_
     from nmnet_ros.core.pipeline import Frontend
     from nmnet_ros.tools.replay import process_bag
 
-    rewrite_bag(raw_bag, tmp_path / "d16", as_16uc1)
+    rewrite_bag(raw_bag, tmp_path / "d16", as_16bit())
     fe = Frontend(None, {})
     processed, said = [], []
     real = fe.process
