@@ -185,7 +185,7 @@ class NMNetNode(Node):
         self._received_before = 0
         self._large_hint = False
         self._frameless_said = False  # frames whose header names no frame: said once
-        self._depth_said = False  # 16UC1 frames (a depth stream?): said once
+        self._depth_said = p["use_compressed"]  # 16UC1 frames (a depth stream?): said once; compressed ones name no encoding
         # a topic named like image_proc's rectified output: say once if its camera_info is the distorted raw one
         self._rect_hint_due = bool(re.search(r"(^|/|_)rect", self._image_sub.topic_name))
         if is_depth(self._image_sub.topic_name):  # an RGB-D camera's depth, remapped by mistake: 16UC1 reads as mono
@@ -375,7 +375,7 @@ class NMNetNode(Node):
             self._large_hint = True  # said once: with a large-frames profile on the camera's side they all arrive
             self.get_logger().info(f"frames of {len(msg.data) / 1e6:.1f} MB on a best-effort subscription: "
                                    f"{large_frames_advice()}")
-        if not self._depth_said and hasattr(msg, "encoding"):  # an Image, not a CompressedImage
+        if not self._depth_said:
             self._depth_said = True  # the stream's encoding does not change: the first frame tells
             if note := depth_encoding_note(self._image_sub.topic_name, msg.encoding):
                 self.get_logger().warning(note)
